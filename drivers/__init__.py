@@ -1,0 +1,1 @@
+"""Bytes to frames: IMU serial formats, streaming and bulk decoders, transports."""

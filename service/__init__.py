@@ -1,0 +1,1 @@
+"""The onboard service: CLI, storage, scheduling, API and publication (the only side effects)."""

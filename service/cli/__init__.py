@@ -1,0 +1,1 @@
+"""The ``recal`` command line: one small module per subcommand (see ``main.SUBCOMMANDS``)."""

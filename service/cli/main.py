@@ -1,0 +1,94 @@
+"""Entry point of the ``recal`` console script.
+
+Each subcommand lives in its own module under ``service.cli`` and exposes
+``register(subparsers) -> argparse.ArgumentParser``; the parser's default ``func`` takes the
+parsed namespace and returns the process exit code.
+
+Exit codes (conventions section 8): 0 success, 2 bad input or unusable design (one line on
+stderr, no traceback), 1 internal error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+import traceback
+
+from recal.errors import RecalInputError
+
+# Module names under service.cli, in the order they appear in --help.
+SUBCOMMANDS: tuple[str, ...] = (
+    "simulate",
+    "calibrate",
+    "diagnose",
+    "positions",
+    "record",
+    "serve",
+    "demo",
+)
+
+
+class CliInputError(Exception):
+    """Bad input detected by the CLI layer itself (exit code 2)."""
+
+
+def _input_error_types() -> tuple[type[BaseException], ...]:
+    types: list[type[BaseException]] = [RecalInputError, CliInputError]
+    try:  # drivers may define their own input error; it is optional here
+        from drivers.errors import DriverInputError  # type: ignore[import-not-found]
+
+        types.append(DriverInputError)
+    except ImportError:
+        pass
+    return tuple(types)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="recal",
+        description="In-field recalibration of FOG gyro and accelerometer triads from static positions.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on internal errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(f"service.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"service.cli.{name}":
+                continue  # subcommand not built yet
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except _input_error_types() as exc:
+        print(f"recal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"recal {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # noqa: BLE001 - the one place internal errors become exit code 1
+        if args.debug or os.environ.get("RECAL_DEBUG"):
+            traceback.print_exc()
+        print(
+            f"recal {args.command}: internal error: {type(exc).__name__}: {exc} "
+            "(run with --debug for the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
