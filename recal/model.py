@@ -1,0 +1,166 @@
+"""Sensor models as ordered sets of terms, and the layout of the parameter vector.
+
+A :class:`Model` composes the :class:`~recal.terms.Term` contributions of one triad into the
+forward map (true input -> output) and its inverse (output -> true input), both batched over P
+parameter vectors. A :class:`ParameterLayout` concatenates the parameters of one or two models
+into a flat vector with names, so solvers only ever see arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from recal.terms import Context, Term, seed_terms
+
+#: Fixed-point steps for the inverse when a term depends on x (the accel K2 term is ~1e-5 / g,
+#: so each step gains ~5 orders of magnitude; three is far below float64 resolution).
+NONLINEAR_STEPS = 3
+
+
+def inv3(A: np.ndarray) -> np.ndarray:
+    """Inverse of a batch of 3x3 matrices (P, 3, 3) by the adjugate; faster than np.linalg.inv here."""
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    d, e, f = A[:, 1, 0], A[:, 1, 1], A[:, 1, 2]
+    g, h, i = A[:, 2, 0], A[:, 2, 1], A[:, 2, 2]
+    co = np.empty_like(A)
+    co[:, 0, 0] = e * i - f * h
+    co[:, 0, 1] = c * h - b * i
+    co[:, 0, 2] = b * f - c * e
+    co[:, 1, 0] = f * g - d * i
+    co[:, 1, 1] = a * i - c * g
+    co[:, 1, 2] = c * d - a * f
+    co[:, 2, 0] = d * h - e * g
+    co[:, 2, 1] = b * g - a * h
+    co[:, 2, 2] = a * e - b * d
+    det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
+    return co / det[:, None, None]
+
+
+@dataclass(frozen=True)
+class Model:
+    """The error model of one triad: ``N = K_eff ⊙ [A x + Σ nonlinear(x) + Σ offset]``."""
+
+    sensor: str
+    terms: tuple[Term, ...]
+
+    @classmethod
+    def seed(cls, sensor: str, extra: Sequence[Term] = ()) -> Model:
+        """The seed paper's model for ``sensor`` plus optional extra terms."""
+        return cls(sensor, tuple(seed_terms(sensor)) + tuple(extra))
+
+    def __post_init__(self) -> None:
+        names = [t.name for t in self.terms]
+        if len(set(names)) != len(names):
+            raise ValueError(f"duplicate terms in model: {names}")
+        for t in self.terms:
+            if t.sensor != self.sensor:
+                raise ValueError(f"term {t.name} is for {t.sensor}, model is {self.sensor}")
+
+    @property
+    def size(self) -> int:
+        return sum(t.size for t in self.terms)
+
+    @property
+    def needs(self) -> frozenset[str]:
+        return frozenset().union(*(t.needs for t in self.terms))
+
+    def with_terms(self, extra: Sequence[Term]) -> Model:
+        return Model(self.sensor, self.terms + tuple(extra))
+
+    def split(self, theta: np.ndarray) -> list[np.ndarray]:
+        """(P, size) -> one (P, term.size) block per term."""
+        out, k = [], 0
+        for t in self.terms:
+            out.append(theta[:, k : k + t.size])
+            k += t.size
+        return out
+
+    def _parts(self, theta: np.ndarray, ctx: Context):
+        P = theta.shape[0]
+        gain: np.ndarray | float = 1.0
+        A = np.broadcast_to(np.eye(3), (P, 3, 3)).copy()
+        offset: np.ndarray | float = 0.0
+        nonlinear: list[tuple[Term, np.ndarray]] = []
+        for t, p in zip(self.terms, self.split(theta), strict=True):
+            s = t.scale(p, ctx)
+            if s is not None:
+                gain = gain * s
+            m = t.matrix(p)
+            if m is not None:
+                A += m
+            o = t.offset(p, ctx)
+            if o is not None:
+                offset = offset + o
+            if type(t).nonlinear is not Term.nonlinear:
+                nonlinear.append((t, p))
+        return gain, A, offset, nonlinear
+
+    def inverse(self, theta: np.ndarray, output: np.ndarray, ctx: Context) -> np.ndarray:
+        """Outputs N (M, 3) -> true inputs x (P, M, 3) for each parameter vector in theta (P, size)."""
+        gain, A, offset, nonlinear = self._parts(theta, ctx)
+        u = output[None, :, :] / gain - offset  # (P, M, 3)
+        Ainv = inv3(A)
+        x = np.einsum("pij,pmj->pmi", Ainv, u)
+        for _ in range(NONLINEAR_STEPS if nonlinear else 0):
+            h = sum(t.nonlinear(p, x, ctx) for t, p in nonlinear)
+            x = np.einsum("pij,pmj->pmi", Ainv, u - h)
+        return x
+
+    def forward(self, theta: np.ndarray, x: np.ndarray, ctx: Context) -> np.ndarray:
+        """True inputs x (M, 3) or (P, M, 3) -> outputs N (P, M, 3)."""
+        gain, A, offset, nonlinear = self._parts(theta, ctx)
+        x = np.broadcast_to(x, (theta.shape[0],) + x.shape[-2:])
+        y = np.einsum("pij,pmj->pmi", A, x) + offset
+        for t, p in nonlinear:
+            y = y + t.nonlinear(p, x, ctx)
+        return gain * y
+
+
+@dataclass(frozen=True)
+class ParameterLayout:
+    """Flat parameter vector over one or two models: names, blocks and typical magnitudes."""
+
+    models: tuple[Model, ...]
+
+    @property
+    def size(self) -> int:
+        return sum(m.size for m in self.models)
+
+    @property
+    def names(self) -> list[str]:
+        return [f"{t.name}.{p}" for m in self.models for t in m.terms for p in t.params]
+
+    def term_of(self) -> list[Term]:
+        """The term owning each flat parameter."""
+        return [t for m in self.models for t in m.terms for _ in t.params]
+
+    def model_slices(self) -> dict[str, slice]:
+        out, k = {}, 0
+        for m in self.models:
+            out[m.sensor] = slice(k, k + m.size)
+            k += m.size
+        return out
+
+    def term_slices(self) -> dict[str, slice]:
+        out, k = {}, 0
+        for m in self.models:
+            for t in m.terms:
+                out[t.name] = slice(k, k + t.size)
+                k += t.size
+        return out
+
+    def typical(self, theta_ref: np.ndarray) -> np.ndarray:
+        """Typical change per parameter; scale factors are relative to the reference value."""
+        typ = np.concatenate([np.asarray(t.typical, float) for m in self.models for t in m.terms])
+        rel = np.array([t.relative_typical for t in self.term_of()])
+        return np.where(rel, typ * np.maximum(np.abs(theta_ref), 1e-12), typ)
+
+    def linearization_mask(self) -> np.ndarray:
+        """True where the observability Jacobian sets the parameter to its neutral value."""
+        return np.array([t.linearize_at_zero for t in self.term_of()])
+
+    def neutral(self) -> np.ndarray:
+        return np.concatenate([np.asarray(t.neutral, float) for m in self.models for t in m.terms])

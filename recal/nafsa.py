@@ -1,0 +1,196 @@
+"""Novel artificial fish swarm algorithm, NAFSA (seed 000 section 2.3; seed 002 section 4).
+
+One iteration of every live Monte Carlo run, all fish at once:
+
+1. **Individual behaviour** (prey + free move). Up to ``tries`` times each fish samples
+   ``X_j = X_i + Visual * U(-1, 1)`` (per-dimension Visual vector) and moves there when
+   ``f(X_j) <= f(X_i)`` (eq. 6). A fish that found nothing better after all tries moves at random,
+   ``X_i + Visual * U(-1, 1)``, and keeps that position even if it is worse (eq. 7); this keeps the
+   swarm diverse, while the best is kept separately (see below).
+2. **Group behaviour** (replaces swarm and follow). ``X_Center`` is the mean of the run's fish. A
+   fish with ``f(X_Center) < f(X_i)`` moves toward the centre,
+   ``X_i + (X_Center - X_i) / Dis_{i,Center} * Visual * U(0, 1)`` (eq. 8); otherwise toward the
+   best, ``X_i + (X_Best - X_i) / Dis_{i,Best} * Visual * U(0, 1)`` (eq. 9).
+   ``X_Best = X_Center`` whenever ``f(X_Center) < f(X_Best)`` (eq. 10).
+3. **Visual update** ``Visual(t+1) = Visual(t) * CF`` (eq. 5) with
+   ``CF = CF_min + (CF_max - CF_min) * U(0, 1)`` (eq. 4); see ``cf_mode``.
+
+NAFSA has no Step, no crowd factor delta and no separate *bulletin*: the best position X_Best is
+the best point ever evaluated by the run (updated from every evaluation, which includes eq. 10), so
+the best-so-far never gets worse. Each dimension is measured in units of the initial Visual vector
+(see :mod:`recal.swarm`); ``Dis`` is the Euclidean distance in those units. CF is one scalar per
+run and iteration, so Visual keeps the shape of the Visual vector of seed 000 Table 1.
+
+Evaluations per fish and iteration: between 2 and ``tries + 2`` (prey tries that are still
+pending, the free move of unsuccessful fish, the group move) plus one per run for ``X_Center``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from recal.swarm import (
+    Objective,
+    SwarmBook,
+    SwarmConfig,
+    SwarmResult,
+    move_toward,
+    uniform,
+)
+
+CF_MODES = ("adaptive", "literal", "constant")
+
+#: (CF_min, CF_max) of seed 000 Table 1, used by ``cf_mode="literal"``.
+LITERAL_CF = (0.000001, 0.999999)
+#: Default (CF_min, CF_max) of ``cf_mode="adaptive"`` (benchmarked, see ``NafsaConfig``).
+ADAPTIVE_CF = (0.5, 0.9)
+#: Default CF of ``cf_mode="constant"``.
+CONSTANT_CF = 0.9
+
+
+@dataclass(frozen=True)
+class NafsaConfig(SwarmConfig):
+    """NAFSA settings; defaults as seed 000 Table 1 (50 fish, 60 iterations) except ``cf_mode``.
+
+    Attributes:
+        cf_mode: how the Contraction Factor CF shrinks Visual (eqs. 4-5):
+
+            * ``"adaptive"`` (default): success-based CF. In an iteration where the run's
+              best-so-far did not improve, ``Visual *= CF`` with CF drawn by eq. 4 in
+              ``[cf_min, cf_max]`` (default ``ADAPTIVE_CF``); after an improving iteration
+              ``Visual *= cf_expand`` (default 1.0: keep), capped at the initial Visual. The paper
+              allows CF to be "a constant or a function"; this is a function of the run's
+              progress, so Visual tracks the distance to the optimum instead of collapsing on a
+              fixed schedule.
+            * ``"literal"``: eq. 4 with Table 1's ``CF_min = 1e-6``, ``CF_max = 0.999999``, applied
+              every iteration and cumulatively (eq. 5). Since ``E[ln CF] = -1`` (ln of a uniform
+              variate), Visual shrinks by about ``e^-1`` per iteration: after 15 iterations it is
+              ~3e-7 of its start, after 20 ~2e-9, and the swarm is frozen; later iterations no
+              longer change the best. Kept to reproduce the papers.
+            * ``"constant"``: ``Visual *= cf_max`` every iteration (default ``CONSTANT_CF``).
+
+        cf_min, cf_max: bounds of eq. 4; ``None`` selects the mode's default.
+        cf_expand: adaptive mode only, factor applied to Visual after an improving iteration
+            (>= 1; capped at the initial Visual).
+    """
+
+    cf_mode: str = "adaptive"
+    cf_min: float | None = None
+    cf_max: float | None = None
+    cf_expand: float = 1.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.cf_mode not in CF_MODES:
+            raise ValueError(f"cf_mode must be one of {CF_MODES}, got {self.cf_mode!r}")
+        lo, hi = self.cf_bounds
+        if not (0.0 < lo <= hi < 1.0 or (self.cf_mode == "constant" and 0.0 < hi <= 1.0)):
+            raise ValueError(f"need 0 < cf_min <= cf_max < 1, got ({lo!r}, {hi!r})")
+        if not self.cf_expand >= 1.0:
+            raise ValueError(f"cf_expand must be >= 1, got {self.cf_expand!r}")
+
+    @property
+    def cf_bounds(self) -> tuple[float, float]:
+        """``(CF_min, CF_max)`` after resolving the mode defaults."""
+        if self.cf_mode == "literal":
+            lo, hi = LITERAL_CF
+        elif self.cf_mode == "adaptive":
+            lo, hi = ADAPTIVE_CF
+        else:
+            lo = hi = CONSTANT_CF
+        hi = hi if self.cf_max is None else float(self.cf_max)
+        lo = (hi if self.cf_mode == "constant" else lo) if self.cf_min is None else self.cf_min
+        return float(lo), float(hi)
+
+
+def nafsa(
+    objective: Objective,
+    center: np.ndarray,
+    visual: np.ndarray,
+    rng: np.random.Generator,
+    config: NafsaConfig | None = None,
+) -> SwarmResult:
+    """Minimise ``objective`` with NAFSA from ``R`` batched, independent Monte Carlo runs.
+
+    Args:
+        objective: ``X (P, D) -> f (P,)``, lower is better; nan counts as +inf.
+        center: ``(D,)`` or ``(R, D)`` preset coefficients each run's swarm starts around.
+        visual: ``(D,)`` or ``(R, D)`` initial per-dimension Visual vector (seed 000 Table 1). The
+            initial swarm is ``center + visual * U(-1, 1)``.
+        rng: the only source of randomness; the same seed gives the same result.
+        config: :class:`NafsaConfig`.
+
+    Returns:
+        :class:`recal.swarm.SwarmResult`; ``visual_history`` holds Visual(t) / Visual(0).
+    """
+    cfg = NafsaConfig() if config is None else config
+    book = SwarmBook(objective, center, visual, cfg)
+    runs, dim, fish = book.runs, book.dim, cfg.fish
+    cf_lo, cf_hi = cfg.cf_bounds
+
+    z = uniform(rng, (runs, fish, dim))
+    fz = book.evaluate(z, np.arange(runs))
+    scale = np.ones(runs)  # Visual(t) / Visual(0), one scalar per run
+    book.record(scale)
+
+    while book.active.any():
+        idx = book.active_runs()
+        zi, fi, si = z[idx], fz[idx], scale[idx]
+        best_before = book.best_f[idx].copy()
+        zi, fi = _individual_behaviour(book, rng, idx, zi, fi, si, cfg.tries)
+        zi, fi = _group_behaviour(book, rng, idx, zi, fi, si)
+        cf = cf_lo + (cf_hi - cf_lo) * uniform(rng, (idx.size,), 0.0)  # eq. 4
+        if cfg.cf_mode == "adaptive":
+            improved = book.best_f[idx] < best_before
+            si = np.where(improved, np.minimum(si * cfg.cf_expand, 1.0), si * cf)
+        else:
+            si = si * cf  # eq. 5
+        z[idx], fz[idx], scale[idx] = zi, fi, si
+        book.record(scale)
+    return book.result()
+
+
+def _individual_behaviour(
+    book: SwarmBook,
+    rng: np.random.Generator,
+    runs: np.ndarray,
+    z: np.ndarray,
+    fz: np.ndarray,
+    scale: np.ndarray,
+    tries: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Prey (eq. 6, up to ``tries`` attempts) then free move (eq. 7) for all fish of ``runs``."""
+    vis = scale[:, None, None]
+    pending = np.ones(fz.shape, dtype=bool)
+    for _ in range(tries):
+        zj = z + vis * uniform(rng, z.shape)
+        fj = book.evaluate(zj, runs, pending)
+        ok = pending & (fj <= fz)  # eq. 6: move when f(X_i) >= f(X_j)
+        z = np.where(ok[..., None], zj, z)
+        fz = np.where(ok, fj, fz)
+        pending &= ~ok
+        if not pending.any():
+            return z, fz
+    zf = z + vis * uniform(rng, z.shape)  # eq. 7, accepted even if worse
+    ff = book.evaluate(zf, runs, pending)
+    return np.where(pending[..., None], zf, z), np.where(pending, ff, fz)
+
+
+def _group_behaviour(
+    book: SwarmBook,
+    rng: np.random.Generator,
+    runs: np.ndarray,
+    z: np.ndarray,
+    fz: np.ndarray,
+    scale: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move toward X_Center (eq. 8) or X_Best (eq. 9); X_Best takes X_Center if better (eq. 10)."""
+    center = z.mean(axis=1, keepdims=True)  # X_Center, (n, 1, D)
+    f_center = book.evaluate(center, runs)  # the bulletin update applies eq. 10
+    toward_center = f_center < fz  # (n, F)
+    best = book.best_z[runs][:, None, :]
+    target = np.where(toward_center[..., None], center, best)
+    z = move_toward(z, target, scale[:, None, None] * uniform(rng, z.shape, 0.0))
+    return z, book.evaluate(z, runs)

@@ -1,0 +1,272 @@
+"""The calibration problem: positions + models + invariants + noise floors, batched.
+
+At rest every position must satisfy (conventions section 2)
+
+* gyro norm:  |w_hat| = Omega_ie (15.04107 deg/h)
+* accel norm: |f_hat| = g_local / g0 (WGS-84 normal gravity, in g)
+* dot product (both triads): w_hat . f_hat = Omega_ie * g_local/g0 * sin(latitude)
+
+:meth:`Problem.residuals` evaluates the whitened residuals of all invariants for a *batch* of
+parameter vectors, shape (P, D) -> (P, R), in one numpy call. LM uses P = 1, a swarm uses
+P = fish x Monte Carlo runs. :meth:`Problem.indicator` is seed 000 eq. (14) (and its accelerometer
+twin, seed 002 eq. 18): the RMS over positions of |x_hat|^2 - ref^2 with M - 1 in the denominator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from recal.errors import RecalInputError
+from recal.model import Model, ParameterLayout
+from recal.positions import Positions
+from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
+
+#: Residual sigma used before any noise information exists (positions without *_std columns):
+#: only the relative weight of the invariants matters and it is re-estimated from the residuals.
+PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01}
+INVARIANT_SENSORS = {"gyro_norm": ("gyro",), "accel_norm": ("accel",), "dot": ("gyro", "accel")}
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Static-position calibration problem for one or both triads.
+
+    Attributes:
+        positions: the static windows.
+        models: sensor -> :class:`Model`, in the order gyro, accel.
+        latitude_deg, height_m: site, for gravity and the dot-product reference.
+        use_dot: include the gyro-accel dot-product invariant when both triads are present.
+        sigma: invariant name -> (M,) 1-sigma of the raw residual (|x| - ref, or w.f - ref).
+        sigma_source: invariant name -> "std columns" (propagated window noise), "provisional"
+            (no noise information yet) or "residuals" (re-estimated from a fit).
+        ctx: context columns for terms (temperature, time, specific force).
+    """
+
+    positions: Positions
+    models: tuple[Model, ...]
+    latitude_deg: float
+    height_m: float = 0.0
+    use_dot: bool = True
+    sigma: Mapping[str, np.ndarray] = field(default_factory=dict)
+    sigma_source: Mapping[str, str] = field(default_factory=dict)
+    ctx: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def build(
+        cls,
+        positions: Positions,
+        models: tuple[Model, ...],
+        latitude_deg: float,
+        height_m: float = 0.0,
+        theta_ref: np.ndarray | None = None,
+        use_dot: bool = True,
+    ) -> Problem:
+        """Check the columns the models need, build the context and the noise floors.
+
+        ``theta_ref`` (the prior) is used to propagate the window noise to the invariants and
+        to estimate the specific force seen by a gyro g-sensitivity term.
+        """
+        sensors = [m.sensor for m in models]
+        for s in sensors:
+            if not getattr(positions, f"has_{s}"):
+                raise RecalInputError(f"{positions.source}: no {s}_x/y/z columns for --sensor {s}")
+        ctx: dict[str, np.ndarray] = {}
+        needs = frozenset().union(*(m.needs for m in models))
+        for col in ("temperature_c", "temperature_rate_c_per_h"):
+            if col in needs:
+                if col not in positions.columns:
+                    users = [t.name for m in models for t in m.terms if col in t.needs]
+                    raise RecalInputError(
+                        f"{positions.source}: effect {', '.join(users)} needs the '{col}' column"
+                    )
+                ctx[col] = positions.columns[col]
+        if "time_h" in needs:
+            if "start_s" not in positions.columns or "end_s" not in positions.columns:
+                raise RecalInputError(f"{positions.source}: bias drift needs start_s and end_s")
+            ctx["time_h"] = 0.5 * (positions.columns["start_s"] + positions.columns["end_s"]) / 3600
+        prob = cls(
+            positions, tuple(models), latitude_deg, height_m, use_dot, {}, "provisional", ctx
+        )
+        layout = prob.layout
+        theta = layout.neutral() if theta_ref is None else np.asarray(theta_ref, float)
+        if "specific_force_g" in needs:
+            if "accel" not in sensors and not positions.has_accel:
+                raise RecalInputError("gyro.g_sensitivity needs accel columns in the positions")
+            ctx["specific_force_g"] = prob._specific_force(theta)
+        return prob.with_sigma(*prob.propagated_sigma(theta))
+
+    def _specific_force(self, theta: np.ndarray) -> np.ndarray:
+        if "accel" in self.sensors:
+            sl = self.layout.model_slices()["accel"]
+            return self.model("accel").inverse(theta[None, sl], self.positions.accel, self.ctx)[0]
+        acc = self.positions.accel  # nominal: unit-gravity direction from raw outputs
+        return acc / np.linalg.norm(acc, axis=1, keepdims=True) * self.gravity_g
+
+    def with_sigma(self, sigma: Mapping[str, np.ndarray], source: Mapping[str, str]) -> Problem:
+        return replace(self, sigma=dict(sigma), sigma_source=dict(source))
+
+    @property
+    def noise_known(self) -> bool:
+        """True when every invariant's sigma comes from the windows' std columns."""
+        return all(v == "std columns" for v in self.sigma_source.values())
+
+    # ---- structure ----------------------------------------------------------------------
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        return tuple(m.sensor for m in self.models)
+
+    def model(self, sensor: str) -> Model:
+        return next(m for m in self.models if m.sensor == sensor)
+
+    @property
+    def layout(self) -> ParameterLayout:
+        return ParameterLayout(self.models)
+
+    @property
+    def M(self) -> int:
+        return len(self.positions)
+
+    @property
+    def gravity_g(self) -> float:
+        return normal_gravity_g(self.latitude_deg, self.height_m)
+
+    @property
+    def invariant_names(self) -> tuple[str, ...]:
+        names = [f"{s}_norm" for s in self.sensors]
+        if self.use_dot and len(self.sensors) == 2:
+            names.append("dot")
+        return tuple(names)
+
+    def reference(self, name: str) -> float:
+        if name == "gyro_norm":
+            return OMEGA_IE_DEG_H
+        if name == "accel_norm":
+            return self.gravity_g
+        return dot_reference(self.latitude_deg, self.height_m)
+
+    @property
+    def n_residuals(self) -> int:
+        return self.M * len(self.invariant_names)
+
+    def output(self, sensor: str) -> np.ndarray:
+        return self.positions.gyro if sensor == "gyro" else self.positions.accel
+
+    # ---- evaluation (batched) -----------------------------------------------------------
+    def physical(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """theta (P, D) -> sensor -> estimated true inputs (P, M, 3)."""
+        theta = np.atleast_2d(theta)
+        sl = self.layout.model_slices()
+        return {
+            m.sensor: m.inverse(theta[:, sl[m.sensor]], self.output(m.sensor), self.ctx)
+            for m in self.models
+        }
+
+    def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units)."""
+        x = self.physical(theta)
+        out = {}
+        for name in self.invariant_names:
+            if name == "dot":
+                val = np.einsum("pmi,pmi->pm", x["gyro"], x["accel"])
+            else:
+                val = np.linalg.norm(x[name.split("_")[0]], axis=2)
+            out[name] = val - self.reference(name)
+        return out
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        """Whitened residuals (P, R), R = M x number of invariants, for least squares."""
+        raw = self.raw_residuals(theta)
+        return np.concatenate([raw[n] / self.sigma[n] for n in self.invariant_names], axis=1)
+
+    def squared_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Seed eq. (13): |x_hat|^2 - ref^2 per position (P, M); the dot product stays linear."""
+        raw = self.raw_residuals(theta)
+        out = {}
+        for n, r in raw.items():
+            ref = self.reference(n)
+            out[n] = r if n == "dot" else r * (r + 2.0 * ref)
+        return out
+
+    def indicator(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Seed 000 eq. (14) per invariant: sqrt(sum((|x|^2 - ref^2)^2) / (M - 1)), shape (P,)."""
+        denom = max(self.M - 1, 1)
+        return {
+            n: np.sqrt(np.sum(r * r, axis=1) / denom)
+            for n, r in self.squared_residuals(theta).items()
+        }
+
+    def indicator_floor(self) -> dict[str, float]:
+        """Expected eq. (14) value from window noise alone, per invariant."""
+        out = {}
+        for n, s in self.sigma.items():
+            scale = 1.0 if n == "dot" else 2.0 * self.reference(n)
+            out[n] = float(np.sqrt(np.mean((scale * s) ** 2)))
+        return out
+
+    def objective(self, theta: np.ndarray) -> np.ndarray:
+        """The swarm objective (P,): sum over invariants of (eq. 14 indicator / its noise floor)^2.
+
+        With one triad this is eq. (14) squared up to a constant, so it has the same minimiser;
+        with both it weighs the gyro, accel and dot invariants by their noise.
+        """
+        floor = self.indicator_floor()
+        ind = self.indicator(theta)
+        total = sum((ind[n] / floor[n]) ** 2 for n in self.invariant_names)
+        return np.where(np.isfinite(total), total, np.inf)
+
+    # ---- noise --------------------------------------------------------------------------
+    def propagated_sigma(self, theta: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+        """Window-mean noise (from *_std columns) propagated to each invariant at ``theta``.
+
+        Falls back to :data:`PROVISIONAL_SIGMA` when a triad has no std columns; the caller then
+        re-estimates the noise from the residuals (:meth:`sigma_from_residuals`).
+        """
+        x = {k: v[0] for k, v in self.physical(theta[None]).items()}
+        sl = self.layout.model_slices()
+        sd_in: dict[str, np.ndarray | None] = {}
+        for m in self.models:
+            sd = self.positions.std_of_mean(m.sensor)
+            if sd is not None:
+                # output noise -> input units through the local gain d N / d x ~ K_eff
+                step = np.abs(x[m.sensor]) * 1e-6 + 1e-9
+                th = theta[None, sl[m.sensor]]
+                gain = (
+                    m.forward(th, x[m.sensor] + step, self.ctx)[0]
+                    - m.forward(th, x[m.sensor], self.ctx)[0]
+                ) / step
+                sd = sd / np.maximum(np.abs(gain), 1e-300)
+            sd_in[m.sensor] = sd
+        out, source = {}, {}
+        for n in self.invariant_names:
+            needed = INVARIANT_SENSORS[n]
+            if any(sd_in[s] is None for s in needed):
+                out[n] = np.full(self.M, PROVISIONAL_SIGMA[n])
+                source[n] = "provisional"
+                continue
+            source[n] = "std columns"
+            if n == "dot":
+                w, f = x["gyro"], x["accel"]
+                var = np.sum(f**2 * sd_in["gyro"] ** 2 + w**2 * sd_in["accel"] ** 2, axis=1)
+            else:
+                v = x[needed[0]]
+                u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+                var = np.sum(u**2 * sd_in[needed[0]] ** 2, axis=1)
+            out[n] = np.sqrt(np.maximum(var, 1e-300))
+        return out, source
+
+    def with_sigma_from_residuals(self, theta: np.ndarray, n_params: int) -> Problem:
+        """Replace every sigma not known from std columns by the dof-corrected residual RMS."""
+        raw = self.raw_residuals(theta[None])
+        dof_frac = max(1.0 - n_params / max(self.n_residuals, 1), 0.05)
+        out, source = dict(self.sigma), dict(self.sigma_source)
+        for n, r in raw.items():
+            if source.get(n) == "std columns":
+                continue
+            rms = float(np.sqrt(np.mean(r[0] ** 2) / dof_frac))
+            out[n] = np.full(self.M, max(rms, 1e-12 * abs(self.reference(n)) + 1e-300))
+            source[n] = "residuals"
+        return self.with_sigma(out, source)

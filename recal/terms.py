@@ -1,0 +1,386 @@
+"""Physical terms of the sensor error models.
+
+A triad's output is modelled (conventions section 1) as
+
+    N = K_eff ⊙ [ A x + Σ nonlinear(x) + Σ offset ]
+
+with ``x`` the true input (deg/h for the gyro, g for the accelerometer), ``K_eff`` the product of
+every term's multiplicative ``scale`` factor, ``A = I + Σ matrix`` and the offsets additive in input
+units. Each :class:`Term` contributes to one or more of those slots; a :class:`~recal.model.Model`
+composes them. Everything is batched: parameters arrive as ``p`` of shape (P, n_params) for P
+candidate parameter vectors (P = 1 for LM, fish × runs for a swarm) and contributions broadcast
+against (P, M, 3) for M positions. A new term never touches a solver.
+
+To add an effect of your own, subclass :class:`Term` in a Python file and pass it with
+``recal calibrate --plugin FILE.py`` (the file defines ``TERMS = [MyTerm(), ...]``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+#: Misalignment coefficient names in the order of conventions section 5 / seed 000 Table 3.
+MISALIGNMENT_NAMES = ("Exz", "Exy", "Eyz", "Eyx", "Ezy", "Ezx")
+#: (row, column) of each misalignment name in E (conventions section 1, seed 000 eq. 11).
+MISALIGNMENT_INDEX = ((0, 2), (0, 1), (1, 2), (1, 0), (2, 1), (2, 0))
+
+Context = Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Term:
+    """One physical term of a sensor model.
+
+    Attributes:
+        name: catalogue name, e.g. ``"gyro.scale"`` (conventions section 7).
+        sensor: ``"gyro"`` or ``"accel"``.
+        params: parameter names, e.g. ``("Kx", "Ky", "Kz")``.
+        units: unit of each parameter (one string for all, or one per parameter).
+        typical: typical magnitude of the parameter's *change* between calibrations, per
+            parameter. It sets the per-dimension swarm Visual, the LM scaling and the
+            observability threshold (a direction is "estimated" when the data pin it down better
+            than this).
+        neutral: parameter values that make the term vanish (no effect).
+        explanation: the one-line physical explanation shown to users.
+        category: phase group for the seed's phased swarm (scale, bias, misalignment, quadratic);
+            catalogue effects form their own category.
+        needs: context columns required (e.g. ``"temperature_c"``).
+        linearize_at_zero: evaluate the observability Jacobian with this term set to neutral.
+            True for misalignment, whose rotational null directions are exact only at E = 0.
+        relative_typical: ``typical`` is a fraction of the prior value (scale factors).
+    """
+
+    name: str
+    sensor: str
+    params: tuple[str, ...]
+    units: str | tuple[str, ...]
+    typical: tuple[float, ...]
+    neutral: tuple[float, ...]
+    explanation: str
+    category: str = ""
+    needs: frozenset[str] = field(default_factory=frozenset)
+    linearize_at_zero: bool = False
+    relative_typical: bool = False
+
+    @property
+    def size(self) -> int:
+        return len(self.params)
+
+    @property
+    def group(self) -> str:
+        return self.category or self.name.split(".", 1)[1]
+
+    def unit_of(self, i: int) -> str:
+        return self.units if isinstance(self.units, str) else self.units[i]
+
+    # ---- contributions (override what applies; None means "no contribution") -----------
+    def scale(self, p: np.ndarray, ctx: Context) -> np.ndarray | None:
+        """Multiplicative factor on the output, broadcastable to (P, M, 3)."""
+        return None
+
+    def matrix(self, p: np.ndarray) -> np.ndarray | None:
+        """Additive part of A = I + E, shape (P, 3, 3)."""
+        return None
+
+    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray | None:
+        """Additive offset in input units, broadcastable to (P, M, 3); independent of x."""
+        return None
+
+    def nonlinear(self, p: np.ndarray, x: np.ndarray, ctx: Context) -> np.ndarray | None:
+        """Additive term that depends on the true input x (P, M, 3), in input units."""
+        return None
+
+
+def _per_axis(p: np.ndarray) -> np.ndarray:
+    """(P, 3) per-axis parameters as (P, 1, 3) so they broadcast over positions."""
+    return p[:, None, :]
+
+
+def _session_column(ctx: Context, key: str) -> np.ndarray:
+    """(M,) context column as (1, M, 1)."""
+    return np.asarray(ctx[key], dtype=float)[None, :, None]
+
+
+# ------------------------------------------------------------------ the seed model's terms
+@dataclass(frozen=True)
+class ScaleTerm(Term):
+    """K: output units per input unit, per axis (seed 000 eq. 11, seed 002 eq. 15)."""
+
+    def scale(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p)
+
+
+@dataclass(frozen=True)
+class BiasTerm(Term):
+    """b: constant offset in input units, per axis."""
+
+    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p)
+
+
+@dataclass(frozen=True)
+class MisalignmentTerm(Term):
+    """E: zero-diagonal misalignment matrix, small angles in rad (conventions section 1)."""
+
+    def matrix(self, p: np.ndarray) -> np.ndarray:
+        E = np.zeros((p.shape[0], 3, 3))
+        for k, (i, j) in enumerate(MISALIGNMENT_INDEX):
+            E[:, i, j] = p[:, k]
+        return E
+
+
+@dataclass(frozen=True)
+class QuadraticTerm(Term):
+    """K2: second-order nonlinearity K2 * f**2 (element-wise), 1/g."""
+
+    def nonlinear(self, p: np.ndarray, x: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p) * x * x
+
+
+# ------------------------------------------------------------------ catalogue effects (section 7)
+@dataclass(frozen=True)
+class TemperatureBiasTerm(Term):
+    """b += k_T (T - T0), per axis."""
+
+    t0_c: float = 25.0
+
+    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p) * (_session_column(ctx, "temperature_c") - self.t0_c)
+
+
+@dataclass(frozen=True)
+class TemperatureScaleTerm(Term):
+    """K *= 1 + s_T (T - T0), per axis."""
+
+    t0_c: float = 25.0
+
+    def scale(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        return 1.0 + _per_axis(p) * (_session_column(ctx, "temperature_c") - self.t0_c)
+
+
+@dataclass(frozen=True)
+class TemperatureRateBiasTerm(Term):
+    """b += k_dT dT/dt, per axis (Shupe effect)."""
+
+    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p) * _session_column(ctx, "temperature_rate_c_per_h")
+
+
+@dataclass(frozen=True)
+class GSensitivityTerm(Term):
+    """b_g += G f with G a 3x3 matrix (deg/h per g); f is the specific force at the position."""
+
+    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        G = p.reshape(p.shape[0], 3, 3)
+        f = np.asarray(ctx["specific_force_g"], dtype=float)  # (M, 3)
+        return np.einsum("pij,mj->pmi", G, f)
+
+
+@dataclass(frozen=True)
+class DriftBiasTerm(Term):
+    """b += d t, per axis, t = session time (h)."""
+
+    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p) * _session_column(ctx, "time_h")
+
+
+@dataclass(frozen=True)
+class ScaleAsymmetryTerm(Term):
+    """Scale K(1 + a) for positive and K(1 - a) for negative input: adds a |x| per axis."""
+
+    def nonlinear(self, p: np.ndarray, x: np.ndarray, ctx: Context) -> np.ndarray:
+        return _per_axis(p) * np.abs(x)
+
+
+def _xyz(prefix: str) -> tuple[str, str, str]:
+    return tuple(f"{prefix}{a}" for a in AXES)  # type: ignore[return-value]
+
+
+def seed_terms(sensor: str) -> list[Term]:
+    """The seed papers' categories: scale, bias, misalignment (and quadratic for the accel)."""
+    if sensor == "gyro":
+        terms: list[Term] = [
+            ScaleTerm(
+                "gyro.scale",
+                "gyro",
+                _xyz("K"),
+                "output/(deg/h)",
+                (1e-3,) * 3,
+                (1.0,) * 3,
+                "Scale factor: output units per deg/h of input rate.",
+                "scale",
+                relative_typical=True,
+            ),
+            BiasTerm(
+                "gyro.bias",
+                "gyro",
+                _xyz("b"),
+                "deg/h",
+                (0.05,) * 3,
+                (0.0,) * 3,
+                "Bias: rate read at zero input, deg/h.",
+                "bias",
+            ),
+            MisalignmentTerm(
+                "gyro.misalignment",
+                "gyro",
+                MISALIGNMENT_NAMES,
+                "rad",
+                (1e-3,) * 6,
+                (0.0,) * 6,
+                "Axis misalignment: small angles between sensing axes.",
+                "misalignment",
+                linearize_at_zero=True,
+            ),
+        ]
+        return terms
+    if sensor == "accel":
+        return [
+            ScaleTerm(
+                "accel.scale",
+                "accel",
+                _xyz("K"),
+                "output/g",
+                (1e-3,) * 3,
+                (1.0,) * 3,
+                "Scale factor: output units per g of specific force.",
+                "scale",
+                relative_typical=True,
+            ),
+            BiasTerm(
+                "accel.bias",
+                "accel",
+                _xyz("b"),
+                "g",
+                (1e-3,) * 3,
+                (0.0,) * 3,
+                "Bias: specific force read at zero input, g.",
+                "bias",
+            ),
+            MisalignmentTerm(
+                "accel.misalignment",
+                "accel",
+                MISALIGNMENT_NAMES,
+                "rad",
+                (1e-3,) * 6,
+                (0.0,) * 6,
+                "Axis misalignment: small angles between sensing axes.",
+                "misalignment",
+                linearize_at_zero=True,
+            ),
+            QuadraticTerm(
+                "accel.quadratic",
+                "accel",
+                _xyz("K2"),
+                "1/g",
+                (1e-4,) * 3,
+                (0.0,) * 3,
+                "Second-order nonlinearity: output grows with f**2.",
+                "quadratic",
+            ),
+        ]
+    raise ValueError(f"unknown sensor {sensor!r}")
+
+
+def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
+    """The named physical effects of conventions section 7, keyed by name."""
+    g9 = tuple(f"G{r}{c}" for r in AXES for c in AXES)
+    terms: list[Term] = [
+        TemperatureBiasTerm(
+            "gyro.bias_temperature",
+            "gyro",
+            _xyz("kT"),
+            "deg/h/degC",
+            (0.01,) * 3,
+            (0.0,) * 3,
+            "Bias changes with temperature (coil and source thermal sensitivity).",
+            "",
+            frozenset({"temperature_c"}),
+            t0_c=t0_c,
+        ),
+        TemperatureScaleTerm(
+            "gyro.scale_temperature",
+            "gyro",
+            _xyz("sT"),
+            "1/degC",
+            (1e-5,) * 3,
+            (0.0,) * 3,
+            "Scale factor changes with temperature (source wavelength and coil length).",
+            "",
+            frozenset({"temperature_c"}),
+            t0_c=t0_c,
+        ),
+        TemperatureRateBiasTerm(
+            "gyro.bias_temperature_rate",
+            "gyro",
+            _xyz("kdT"),
+            "deg/h/(degC/h)",
+            (0.01,) * 3,
+            (0.0,) * 3,
+            "Bias from a temperature gradient across the coil (Shupe "
+            "effect), proportional to dT/dt.",
+            "",
+            frozenset({"temperature_rate_c_per_h"}),
+        ),
+        GSensitivityTerm(
+            "gyro.g_sensitivity",
+            "gyro",
+            g9,
+            "deg/h/g",
+            (0.01,) * 9,
+            (0.0,) * 9,
+            "Bias proportional to specific force (mechanical stress on the coil).",
+            "",
+            frozenset({"specific_force_g"}),
+        ),
+        DriftBiasTerm(
+            "gyro.bias_drift",
+            "gyro",
+            _xyz("d"),
+            "deg/h/h",
+            (0.005,) * 3,
+            (0.0,) * 3,
+            "Bias drifts linearly over the session (ageing, warm-up).",
+            "",
+            frozenset({"time_h"}),
+        ),
+        TemperatureBiasTerm(
+            "accel.bias_temperature",
+            "accel",
+            _xyz("kT"),
+            "g/degC",
+            (2e-5,) * 3,
+            (0.0,) * 3,
+            "Bias changes with temperature (pendulum and electronics).",
+            "",
+            frozenset({"temperature_c"}),
+            t0_c=t0_c,
+        ),
+        TemperatureScaleTerm(
+            "accel.scale_temperature",
+            "accel",
+            _xyz("sT"),
+            "1/degC",
+            (2e-5,) * 3,
+            (0.0,) * 3,
+            "Scale factor changes with temperature (magnet and torquer).",
+            "",
+            frozenset({"temperature_c"}),
+            t0_c=t0_c,
+        ),
+        ScaleAsymmetryTerm(
+            "accel.scale_asymmetry",
+            "accel",
+            _xyz("a"),
+            "1",
+            (1e-4,) * 3,
+            (0.0,) * 3,
+            "Different scale factor for positive and negative input.",
+            "",
+        ),
+    ]
+    return {t.name: t for t in terms}
