@@ -77,6 +77,23 @@ class ObservabilityReport:
         }
 
 
+def varimax(basis: np.ndarray, iterations: int = 50) -> np.ndarray:
+    """Rotate an orthonormal basis (D, n) within its span towards sparse columns (varimax), so
+    held directions read as simple combinations such as ``Exz - Eyz``."""
+    D, n = basis.shape
+    if n < 2:
+        return basis
+    R = np.eye(n)
+    for _ in range(iterations):
+        L = basis @ R
+        u, _, vt = np.linalg.svd(basis.T @ (L**3 - L @ np.diag(np.sum(L**2, axis=0)) / D))
+        R_new = u @ vt
+        if np.allclose(R_new, R, atol=1e-12):
+            break
+        R = R_new
+    return basis @ R
+
+
 def _label(vec: np.ndarray, names: list[str]) -> str:
     idx = np.argsort(-np.abs(vec))
     big = [i for i in idx if abs(vec[i]) >= 0.1 * np.abs(vec).max()][:4]
@@ -102,7 +119,7 @@ def analyze(
     s_full[: len(s)] = s
     s_max = s_full.max() if D else 0.0
     keep = (s_full >= max(rcond * s_max, info_min)) & (s_full > 0)
-    basis, null = Vt[keep].T, Vt[~keep].T
+    basis, null = Vt[keep].T, varimax(Vt[~keep].T)
     share = np.sum(basis**2, axis=1)
     estimated = share >= ESTIMATED_SHARE
     held = [_label(null[:, j], names) for j in range(null.shape[1])]

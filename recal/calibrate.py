@@ -1,0 +1,320 @@
+"""Calibration from static positions: the engine's one entry point.
+
+:func:`calibrate` takes a positions table and :class:`CalibrationOptions` and returns a
+:class:`CalibrationResult` holding the coefficients, the per-coefficient status ("estimated" or
+"held"), the Gauss-Newton 1-sigma, the MCS spread (swarm methods), the observability verdict and
+the residuals. The steps:
+
+1. models: the seed model per triad plus requested catalogue/plugin effects;
+2. prior: the previous calibration, or one derived from the data (common scale from the median
+   norm, everything else neutral);
+3. observability at the prior: refuse designs that cannot show scale and bias;
+4. solve on the observable directions (LM; or MCS-NAFSA/SAFSA/OAFSA, optionally LM-polished);
+5. without window std columns, estimate the noise from the residuals and solve again;
+6. observability and covariance at the solution.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from recal.coefficients import CoefficientSet, layout_like
+from recal.errors import RecalInputError
+from recal.lm import covariance, solve_lm
+from recal.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
+from recal.model import Model, ParameterLayout
+from recal.observability import ObservabilityReport, analyze, generic_rank
+from recal.phases import paper_phases, whitened_phase
+from recal.positions import Positions
+from recal.problem import Problem
+from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.swarm import SwarmConfig
+from recal.terms import Term, catalogue_terms
+
+METHODS = ("lm",) + SWARM_METHODS
+UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g"}
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """What to calibrate and how.
+
+    sensor: "gyro", "accel", "both" or None (every triad present in the positions).
+    method: "lm" (default), "nafsa", "safsa" or "oafsa".
+    mc_runs: Monte Carlo repetitions for swarm methods (seed: 100).
+    paper: run swarms as the seeds do (category phases in raw coordinates, literal CF,
+        Table 1 Visual); default is the whitened joint phase over observable directions.
+    polish: follow a swarm by LM from its mean.
+    effects: extra terms by catalogue name; plugin_terms: user Term objects.
+    """
+
+    sensor: str | None = None
+    method: str = "lm"
+    mc_runs: int = 100
+    seed: int = 0
+    latitude_deg: float = 45.0
+    height_m: float = 0.0
+    prior: CoefficientSet | None = None
+    effects: Sequence[str] = ()
+    plugin_terms: Sequence[Term] = ()
+    paper: bool = False
+    polish: bool = False
+    swarm_config: SwarmConfig | None = None
+    cycles: int = 3
+    t0_c: float = 25.0
+
+
+@dataclass
+class CalibrationResult:
+    coefficients: CoefficientSet
+    status: dict[str, np.ndarray]  # term name -> array of "estimated"/"held"
+    uncertainty: dict[str, np.ndarray]  # term name -> 1-sigma (NaN where held)
+    observability: ObservabilityReport
+    problem: Problem
+    theta: np.ndarray
+    theta_prior: np.ndarray
+    chi2_red: float
+    method: str
+    evaluations: int
+    wall_time_s: float
+    prior_source: str
+    mcs: MCSResult | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def layout(self) -> ParameterLayout:
+        return self.problem.layout
+
+    @property
+    def terms(self) -> dict[str, Term]:
+        return {t.name: t for m in self.problem.models for t in m.terms}
+
+    def residual_summary(self) -> dict[str, Any]:
+        before = self.problem.raw_residuals(self.theta_prior[None])
+        after = self.problem.raw_residuals(self.theta[None])
+        ind_before = self.problem.indicator(self.theta_prior[None])
+        ind_after = self.problem.indicator(self.theta[None])
+        out = {}
+        for n in self.problem.invariant_names:
+            noise = self.problem.sigma_source.get(n) == "std columns"
+            out[n] = {
+                "unit": UNITS[n],
+                "reference": self.problem.reference(n),
+                "rms_before": float(np.sqrt(np.mean(before[n] ** 2))),
+                "rms_after": float(np.sqrt(np.mean(after[n] ** 2))),
+                "noise_floor": float(np.sqrt(np.mean(self.problem.sigma[n] ** 2)))
+                if noise
+                else None,
+                "indicator_eq14_before": float(ind_before[n][0]),
+                "indicator_eq14_after": float(ind_after[n][0]),
+                "per_position": [float(v) for v in after[n][0]],
+            }
+        return out
+
+    def to_json_dict(self) -> dict[str, Any]:
+        terms = self.terms
+        out: dict[str, Any] = {
+            "coefficients": self.coefficients.to_json_dict(terms),
+            "status": layout_like(self.status, str, terms),
+            "uncertainty": layout_like(
+                self.uncertainty, lambda v: None if not np.isfinite(v) else float(v), terms
+            ),
+            "uncertainty_kind": (
+                "Gauss-Newton 1-sigma from the window noise propagated through the invariants "
+                "(scaled by max(1, chi2_red)); measurement uncertainty of each estimated value"
+                if self.problem.noise_known
+                else "Gauss-Newton 1-sigma with the noise estimated from the fit residuals"
+            ),
+            "observability": self.observability.to_json_dict(),
+            "residuals": self.residual_summary(),
+            "chi2_red": self.chi2_red,
+            "method": self.method,
+            "sensor": "both" if len(self.problem.sensors) == 2 else self.problem.sensors[0],
+            "positions": self.problem.M,
+            "latitude_deg": self.problem.latitude_deg,
+            "height_m": self.problem.height_m,
+            "gravity_g": self.problem.gravity_g,
+            "earth_rate_deg_h": OMEGA_IE_DEG_H,
+            "prior": self.prior_source,
+            "evaluations": self.evaluations,
+            "wall_time_s": self.wall_time_s,
+            "notes": self.notes,
+        }
+        if self.mcs is not None:
+            split = CoefficientSet.from_vector
+            out["mc"] = {
+                "runs": int(self.mcs.runs.shape[0]),
+                "cycles": self.mcs.cycles,
+                "mean": split(self.layout, self.mcs.mean).to_json_dict(terms),
+                "std": split(self.layout, self.mcs.std).to_json_dict(terms),
+                "kind": "spread over the Monte Carlo runs: solver repeatability on this data, "
+                "not measurement uncertainty (see 'uncertainty')",
+            }
+        return out
+
+
+def build_models(
+    sensors: Sequence[str], effects: Sequence[str], plugin_terms: Sequence[Term], t0_c: float
+) -> tuple[Model, ...]:
+    """Seed models for ``sensors`` plus catalogue effects (by name) and plugin terms."""
+    catalogue = catalogue_terms(t0_c)
+    extra: list[Term] = []
+    for name in effects:
+        if name in catalogue:
+            extra.append(catalogue[name])
+        elif not any(t.name == name for t in plugin_terms):
+            known = ", ".join(sorted(catalogue) + [t.name for t in plugin_terms])
+            raise RecalInputError(f"unknown effect '{name}'; known effects: {known}")
+    extra += [t for t in plugin_terms if t.name in effects or not effects]
+    for t in extra:
+        if t.sensor not in sensors:
+            raise RecalInputError(f"effect {t.name} needs the {t.sensor} triad (--sensor)")
+    return tuple(Model.seed(s, [t for t in extra if t.sensor == s]) for s in sensors)
+
+
+def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: float) -> np.ndarray:
+    """A prior from the data alone: a common scale per triad from the median output norm."""
+    theta = layout.neutral()
+    refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
+    for name, sl in layout.term_slices().items():
+        sensor, key = name.split(".", 1)
+        if key == "scale":
+            out = positions.gyro if sensor == "gyro" else positions.accel
+            theta[sl] = np.median(np.linalg.norm(out, axis=1)) / refs[sensor]
+    return theta
+
+
+def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...]:
+    if sensor in (None, "auto"):
+        found = tuple(s for s in ("gyro", "accel") if getattr(positions, f"has_{s}"))
+        return found
+    if sensor == "both":
+        return ("gyro", "accel")
+    if sensor in ("gyro", "accel"):
+        return (sensor,)
+    raise RecalInputError(f"--sensor must be gyro, accel or both, not {sensor!r}")
+
+
+def calibrate(
+    positions: Positions,
+    options: CalibrationOptions | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> CalibrationResult:
+    """Recalibrate from static positions. Raises :class:`RecalInputError` for unusable input."""
+    opt = options or CalibrationOptions()
+    t_start = time.perf_counter()
+    if opt.method not in METHODS:
+        raise RecalInputError(f"--method must be one of {', '.join(METHODS)}, not {opt.method!r}")
+    if opt.method != "lm" and opt.mc_runs < 1:
+        raise RecalInputError("--mc must be at least 1")
+    if not -90 <= opt.latitude_deg <= 90:
+        raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
+    sensors = _resolve_sensors(positions, opt.sensor)
+    models = build_models(sensors, opt.effects, opt.plugin_terms, opt.t0_c)
+    layout = ParameterLayout(models)
+    if opt.prior is not None:
+        theta_data = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
+        fallback = {n: theta_data[sl] for n, sl in layout.term_slices().items()}
+        theta0 = opt.prior.to_vector(layout, fallback)
+        prior_source = str(opt.prior.metadata.get("source", "given prior"))
+    else:
+        theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
+        prior_source = "data-derived (common scale from the median norm; bias, misalignment zero)"
+    problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0)
+    needed = generic_rank(problem) + 1
+    if problem.n_residuals < needed:
+        raise RecalInputError(
+            f"{problem.M} positions give {problem.n_residuals} invariant equations but "
+            f"{needed - 1} coefficients are identifiable: need at least {needed} equations"
+        )
+    typical = layout.typical(theta0)
+    report = analyze(problem, theta0, typical)
+    if report.verdict == "insufficient":
+        raise RecalInputError(f"unusable design: {report.message}")
+    notes: list[str] = []
+    evaluations = 0
+    mcs = None
+    theta = theta0
+    for attempt in range(2):  # second pass after estimating the noise from the residuals
+        T = typical[:, None] * report.basis
+        if opt.method == "lm":
+            lm = solve_lm(problem, theta0, T)
+            theta, evaluations = lm.theta, evaluations + lm.evaluations
+        else:
+            if opt.paper:
+                phases = paper_phases(layout, typical)
+            else:
+                phases = [whitened_phase(problem, theta0, typical, report)]
+            cfg = opt.swarm_config
+            if opt.paper and cfg is None and opt.method == "nafsa":
+                cfg = solver_for("nafsa")[1](cf_mode="literal")
+            mcs = run_mcs(
+                problem,
+                theta0,
+                phases,
+                opt.method,
+                opt.mc_runs,
+                opt.seed,
+                cfg,
+                opt.cycles,
+                progress=progress if attempt == 0 else None,
+            )
+            theta, evaluations = mcs.mean, evaluations + mcs.evaluations
+            if opt.polish:
+                lm = solve_lm(problem, theta, T)
+                theta, evaluations = lm.theta, evaluations + lm.evaluations
+        if problem.noise_known or attempt == 1:
+            break
+        problem = problem.with_sigma_from_residuals(theta, report.rank)
+        report = analyze(problem, theta, typical)
+        if report.verdict == "insufficient":
+            raise RecalInputError(f"unusable design: {report.message}")
+    report = analyze(problem, theta, typical)
+    T = typical[:, None] * report.basis
+    cov, chi2_red = covariance(problem, theta, T)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    status_flat = np.where(report.estimated, "estimated", "held")
+    sd = np.where(report.estimated, sd, np.nan)
+    if opt.paper and opt.method != "lm":
+        notes.append(
+            "paper mode: the swarm also searched the directions no norm can see "
+            f"({'; '.join(report.held_directions) or 'none'}); their values are arbitrary"
+        )
+    if not problem.noise_known:
+        notes.append("no *_std columns: noise estimated from the fit residuals")
+    if problem.noise_known and chi2_red > 4.0:
+        notes.append(
+            f"chi2_red = {chi2_red:.1f}: residuals exceed the window noise; an effect may be "
+            "missing from the model (try `recal diagnose`)"
+        )
+    slices = layout.term_slices()
+    coeffs = CoefficientSet.from_vector(
+        layout,
+        theta,
+        opt.t0_c,
+        method=opt.method,
+        prior=prior_source,
+        positions=problem.M,
+        source=positions.source,
+    )
+    return CalibrationResult(
+        coefficients=coeffs,
+        status={n: status_flat[sl] for n, sl in slices.items()},
+        uncertainty={n: sd[sl] for n, sl in slices.items()},
+        observability=report,
+        problem=problem,
+        theta=theta,
+        theta_prior=theta0,
+        chi2_red=chi2_red,
+        method=opt.method + (" (paper mode)" if opt.paper and opt.method != "lm" else ""),
+        evaluations=evaluations,
+        wall_time_s=time.perf_counter() - t_start,
+        prior_source=prior_source,
+        mcs=mcs,
+        notes=notes,
+    )

@@ -1,0 +1,185 @@
+"""``recal calibrate``: coefficients, status, uncertainty and observability from positions."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from recal.calibrate import METHODS, CalibrationOptions, CalibrationResult, calibrate
+from recal.errors import RecalInputError
+from recal.swarm import SwarmConfig
+from recal.terms import catalogue_terms
+from service.cli.common import (
+    atomic_write,
+    load_coefficients,
+    load_plugin,
+    load_positions,
+    parse_effects,
+    print_json,
+    progress_bar,
+)
+
+
+def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
+    """Options shared by calibrate and diagnose (conventions section 8)."""
+    p.add_argument("positions", metavar="POSITIONS.csv")
+    p.add_argument(
+        "--sensor",
+        choices=("gyro", "accel", "both"),
+        default=None,
+        help="triad(s) to calibrate (default: every triad in the file)",
+    )
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="lm",
+        help="lm (default), or a swarm repeated --mc times: nafsa, safsa, oafsa",
+    )
+    p.add_argument("--mc", type=int, default=100, help="Monte Carlo runs for swarms (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="random seed for swarms (default 0)")
+    p.add_argument(
+        "--latitude",
+        type=float,
+        default=None,
+        help="site latitude, deg (default 45 with a warning)",
+    )
+    p.add_argument("--height", type=float, default=0.0, help="site height, m (default 0)")
+    p.add_argument(
+        "--prior",
+        metavar="COEFFS.json",
+        help="previous calibration: the start, and the value of held coefficients",
+    )
+    p.add_argument("--effects", metavar="+NAME,...", help="extra catalogue or plugin effects")
+    p.add_argument(
+        "--plugin",
+        metavar="FILE.py",
+        action="append",
+        default=[],
+        help="Python file defining TERMS = [...] (recal.terms.Term subclasses)",
+    )
+    p.add_argument(
+        "--paper",
+        action="store_true",
+        help="swarms exactly as the seed papers (category phases, literal CF, Table 1 "
+        "Visual); reproduces their shortcomings",
+    )
+    p.add_argument("--polish", action="store_true", help="follow a swarm by LM")
+    p.add_argument("--fish", type=int, default=50, help="swarm size (default 50)")
+    p.add_argument("--iterations", type=int, default=60, help="iterations per phase (default 60)")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
+    plugin_terms = [t for path in args.plugin for t in load_plugin(path)]
+    terms = {**catalogue_terms(), **{t.name: t for t in plugin_terms}}
+    prior = load_coefficients(args.prior, terms) if args.prior else None
+    if args.latitude is None:
+        print(
+            "recal: --latitude not given, assuming 45 deg (gravity and the dot product "
+            "depend on it)",
+            file=sys.stderr,
+        )
+    if args.fish < 2 or args.iterations < 1:
+        raise RecalInputError("--fish must be at least 2 and --iterations at least 1")
+    swarm = None
+    if args.fish != 50 or args.iterations != 60:
+        from recal.mcs import solver_for
+
+        cfg_cls = solver_for(args.method)[1] if args.method != "lm" else SwarmConfig
+        extra = {"cf_mode": "literal"} if args.paper and args.method == "nafsa" else {}
+        swarm = cfg_cls(fish=args.fish, iterations=args.iterations, **extra)
+    return CalibrationOptions(
+        sensor=args.sensor,
+        method=args.method,
+        mc_runs=args.mc,
+        seed=args.seed,
+        latitude_deg=45.0 if args.latitude is None else args.latitude,
+        height_m=args.height,
+        prior=prior,
+        effects=parse_effects(args.effects),
+        plugin_terms=plugin_terms,
+        paper=args.paper,
+        polish=args.polish,
+        swarm_config=swarm,
+    )
+
+
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "calibrate",
+        help="estimate scale, bias, misalignment (...) from a positions CSV",
+        description="Recalibrate gyro and/or accelerometer triads from static positions. "
+        "Coefficients the positions cannot show are held at the prior and reported as 'held'.",
+    )
+    add_calibration_arguments(p)
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="COEFFS.json",
+        help="write the coefficients (usable as the next --prior)",
+    )
+    p.set_defaults(func=run)
+    return p
+
+
+def run_calibration(args: argparse.Namespace) -> CalibrationResult:
+    options = options_from_args(args)
+    positions = load_positions(args.positions)
+    if options.method == "lm":
+        return calibrate(positions, options)
+    bar = progress_bar(options.mc_runs, f"MCS-{options.method.upper()}")
+    try:
+        return calibrate(positions, options, progress=bar.update)
+    finally:
+        bar.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    result = run_calibration(args)
+    doc = result.to_json_dict()
+    if args.output:
+        atomic_write(args.output, json.dumps(doc["coefficients"], indent=2) + "\n")
+    if args.json:
+        print_json(doc)
+    else:
+        sys.stdout.write(format_result(result))
+    return 0
+
+
+def format_result(r: CalibrationResult) -> str:
+    """Human-readable report: one line per coefficient, then residuals and observability."""
+    lines = [
+        f"recal calibrate: {r.method}, {r.problem.M} positions, sensor "
+        f"{'+'.join(r.problem.sensors)}, latitude {r.problem.latitude_deg:g} deg "
+        f"(g = {r.problem.gravity_g:.6f} g0), {r.wall_time_s:.2f} s",
+        "",
+        f"{'coefficient':34s} {'value':>16s} {'1-sigma (GN)':>13s} "
+        + (f"{'MC std':>11s} " if r.mcs is not None else "")
+        + " status",
+    ]
+    names = r.layout.names
+    sd = np.concatenate([r.uncertainty[n] for n in r.layout.term_slices()])
+    status = np.concatenate([r.status[n] for n in r.layout.term_slices()])
+    for i, name in enumerate(names):
+        term = r.layout.term_of()[i]
+        unit = term.unit_of(term.params.index(name.rsplit(".", 1)[1]))
+        sig = f"{sd[i]:13.4g}" if np.isfinite(sd[i]) else f"{'-':>13s}"
+        mc = f"{r.mcs.std[i]:11.3g} " if r.mcs is not None else ""
+        lines.append(f"{name:34s} {r.theta[i]:16.9g} {sig} {mc} {status[i]}  [{unit}]")
+    lines.append("")
+    lines.append(f"{'invariant':12s} {'RMS before':>12s} {'RMS after':>12s} {'noise floor':>12s}")
+    for n, v in r.residual_summary().items():
+        floor = f"{v['noise_floor']:12.4g}" if v["noise_floor"] is not None else f"{'unknown':>12s}"
+        lines.append(
+            f"{n:12s} {v['rms_before']:12.4g} {v['rms_after']:12.4g} {floor}  [{v['unit']}]"
+        )
+    lines.append(f"chi2_red = {r.chi2_red:.3f}")
+    lines.append("")
+    lines.append(f"observability: {r.observability.verdict} -- {r.observability.message}")
+    lines.append(f"prior: {r.prior_source}")
+    for note in r.notes:
+        lines.append(f"note: {note}")
+    return "\n".join(lines) + "\n"

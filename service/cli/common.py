@@ -1,0 +1,113 @@
+"""Helpers shared by the subcommands: reading inputs with clear errors, atomic writes, progress."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from recal.coefficients import CoefficientSet
+from recal.errors import RecalInputError
+from recal.positions import Positions
+from recal.terms import Term
+
+
+def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
+    p = Path(path)
+    try:
+        return p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecalInputError(f"{what} {p} does not exist") from None
+    except IsADirectoryError:
+        raise RecalInputError(f"{what} {p} is a directory") from None
+    except (PermissionError, UnicodeDecodeError, OSError) as exc:
+        raise RecalInputError(f"cannot read {what} {p}: {exc.__class__.__name__}") from None
+
+
+def atomic_write(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and a rename, so a
+    failure never leaves a half-written file under the final name."""
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.is_dir():
+        raise RecalInputError(f"output folder {folder} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_positions(path: str) -> Positions:
+    return Positions.from_csv_text(read_text(path, "positions file"), source=str(path))
+
+
+def load_coefficients(path: str, terms: dict[str, Term] | None = None) -> CoefficientSet:
+    text = read_text(path, "coefficients file")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RecalInputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    cs = CoefficientSet.from_json_dict(data, terms, source=str(path))
+    cs.metadata.setdefault("source", str(path))
+    cs.metadata["source"] = str(path)
+    return cs
+
+
+def load_plugin(path: str) -> list[Term]:
+    """Import a user's Python file defining ``TERMS = [Term, ...]`` (see recal.terms)."""
+    p = Path(path)
+    if not p.is_file():
+        raise RecalInputError(f"plugin {p} does not exist")
+    spec = importlib.util.spec_from_file_location(f"recal_plugin_{p.stem}", p)
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    try:
+        spec.loader.exec_module(module)  # type: ignore[union-attr]
+    except Exception as exc:  # noqa: BLE001 - user code: report, don't crash
+        raise RecalInputError(f"plugin {p} failed to load: {type(exc).__name__}: {exc}") from None
+    terms = getattr(module, "TERMS", None)
+    if not terms or not all(isinstance(t, Term) for t in terms):
+        raise RecalInputError(f"plugin {p} must define TERMS = [recal.terms.Term, ...]")
+    return list(terms)
+
+
+def parse_effects(text: str | None) -> list[str]:
+    """'+gyro.bias_temperature,+gyro.bias_drift' -> names (the '+' is optional)."""
+    if not text:
+        return []
+    return [e.strip().lstrip("+") for e in text.split(",") if e.strip()]
+
+
+def progress_bar(total: int, desc: str) -> Any:
+    """A tqdm bar on stderr, shown only on a terminal; returns an object with update()/close()."""
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total,
+        desc=desc,
+        file=sys.stderr,
+        disable=not sys.stderr.isatty(),
+        unit="run",
+        leave=False,
+    )
+
+
+def print_json(obj: Any) -> None:
+    sys.stdout.write(json.dumps(obj, indent=2, allow_nan=False, default=_default) + "\n")
+
+
+def _default(o: Any) -> Any:
+    import numpy as np
+
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
