@@ -1,1 +1,46 @@
-"""Bytes to frames: IMU serial formats, streaming and bulk decoders, transports."""
+"""Bytes to frames: IMU serial formats, streaming and bulk decoders, transports.
+
+Uses only the standard library, numpy and pyserial; knows nothing of calibration.
+"""
+
+from __future__ import annotations
+
+from . import kvh as kvh  # registers the KVH formats
+from .bulk import decode_bulk
+from .config import (
+    DEFAULT_CONFIG,
+    DecoderConfig,
+    physical_to_raw_gyro,
+    physical_to_raw_temperature,
+    raw_to_physical_gyro,
+)
+from .crc import crc32_mpeg2
+from .decoder import StreamDecoder
+from .diagnose import diagnose, require_frames
+from .encode import encode_frame, encode_frames
+from .errors import DriverInputError
+from .formats import FrameFormat, format_names, get_format, register
+from .frames import DecoderCounters, FrameBatch, concat_batches
+
+__all__ = [
+    "DEFAULT_CONFIG",
+    "DecoderConfig",
+    "DecoderCounters",
+    "DriverInputError",
+    "FrameBatch",
+    "FrameFormat",
+    "StreamDecoder",
+    "concat_batches",
+    "crc32_mpeg2",
+    "decode_bulk",
+    "diagnose",
+    "encode_frame",
+    "encode_frames",
+    "format_names",
+    "get_format",
+    "physical_to_raw_gyro",
+    "physical_to_raw_temperature",
+    "raw_to_physical_gyro",
+    "register",
+    "require_frames",
+]

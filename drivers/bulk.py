@@ -1,0 +1,302 @@
+"""Vectorised frame scanning: the one decoding routine behind both the bulk and streaming paths.
+
+The rule (what a byte-at-a-time decoder would do): at position p, if the format's header starts
+there, the whole frame is present and its check passes, accept the frame and continue at p + L;
+otherwise skip one byte. ``scan`` applies that rule to a whole buffer with numpy: it finds every
+header candidate, checks all complete candidates at once, and resolves overlaps greedily from the
+left. Without ``final`` it stops before the first position it cannot decide yet (a header whose
+frame is incomplete, or a possible header cut by the buffer end), so chunked feeding gives the
+same frames and counters as one pass over the whole stream.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from .config import DEFAULT_CONFIG, DecoderConfig
+from .formats import FrameFormat, all_formats, get_format
+from .frames import VALID_STATUS, DecoderCounters, FrameBatch
+
+_MAG_AXES = {"mag_x": 0, "mag_y": 1, "mag_z": 2}
+
+
+@dataclass
+class Continuity:
+    """What carries over between scans of one stream: sequence/time unwrapping and skip state."""
+
+    started: bool = False
+    prev_seq: int = 0
+    index: int = 0  # unwrapped sample index of the previous frame (first frame = 0)
+    prev_ticks: int = 0
+    ticks: int = 0  # accumulated timestamp ticks of the previous frame since the first
+    in_skip: bool = False  # the last decided byte was skipped (a resync run is open)
+
+
+def _find_all(buf: np.ndarray, headers: list[bytes]) -> list[np.ndarray]:
+    """Start positions of each header in buf (whole header inside buf), sharing common prefixes."""
+    n = buf.shape[0]
+    cache: dict[bytes, np.ndarray] = {}
+    out = []
+    for h in headers:
+        k = 1
+        while k < len(h) and h[: k + 1] in cache:
+            k += 1
+        if h[:k] in cache:
+            idx = cache[h[:k]]
+        else:
+            idx = np.flatnonzero(buf == h[0])
+            cache[h[:1]] = idx
+        for j in range(k, len(h)):
+            idx = idx[idx + j < n]
+            idx = idx[buf[idx + j] == h[j]]
+            cache[h[: j + 1]] = idx
+        out.append(idx[idx + len(h) <= n])
+    return out
+
+
+def _greedy(pos: np.ndarray, length: int) -> np.ndarray:
+    """Keep-mask for accepted positions: leftmost first, skipping any inside an accepted frame."""
+    keep = np.zeros(pos.shape[0], dtype=bool)
+    nxt = -1
+    for i, p in enumerate(pos.tolist()):
+        if p >= nxt:
+            keep[i] = True
+            nxt = p + length
+    return keep
+
+
+def _not_covered(pos: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
+    """Mask of positions the decoder examines: not strictly inside an accepted frame."""
+    if starts.shape[0] == 0 or pos.shape[0] == 0:
+        return np.ones(pos.shape[0], dtype=bool)
+    k = np.searchsorted(starts, pos, side="right") - 1
+    s = starts[np.maximum(k, 0)]
+    inside = (k >= 0) & (pos > s) & (pos < s + length)
+    return ~inside
+
+
+class Engine:
+    """Scanner and unpacker for one format and configuration."""
+
+    def __init__(self, fmt: str | FrameFormat = "kvh-a", config: DecoderConfig = DEFAULT_CONFIG):
+        self.fmt = get_format(fmt)
+        self.config = config
+        self.known = all_formats()
+        if self.fmt not in self.known:
+            self.known.append(self.fmt)
+        self.headers = [f.header for f in self.known]
+        self.target_index = self.known.index(self.fmt)
+        self.max_header = max(len(h) for h in self.headers)
+        self.gyro_factor = config.gyro_to_dph
+        self.temp_scale = config.temperature_scale
+        self.extra_spec = {
+            name: (np.dtype(f.dtype).newbyteorder("=").type, (f.count,) if f.count > 1 else ())
+            for name, f in self.fmt.fields.items()
+            if name in self.fmt.extra_fields
+        }
+
+    def new_counters(self) -> DecoderCounters:
+        return DecoderCounters(
+            frame_length=self.fmt.length, headers_seen={f.name: 0 for f in self.known}
+        )
+
+    def empty(self) -> FrameBatch:
+        return FrameBatch.empty(self.fmt.name, self.extra_spec)
+
+    def scan(
+        self,
+        buf: np.ndarray,
+        final: bool,
+        state: Continuity,
+        counters: DecoderCounters,
+        host_time: float,
+    ) -> tuple[FrameBatch, int, np.ndarray]:
+        """Decode what can be decided in ``buf``; returns (frames, bytes decided, frame starts).
+
+        Updates ``state`` and ``counters`` (all but bytes_in and bytes_pending, which belong to
+        the caller).
+        """
+        fmt = self.fmt
+        length = fmt.length
+        n = int(buf.shape[0])
+        found = _find_all(buf, self.headers)
+        cand = found[self.target_index]
+        complete = cand[cand + length <= n]
+        if complete.shape[0]:
+            rows = sliding_window_view(buf, length)[complete]
+            ok = fmt.checker.verify(rows)
+            starts = complete[ok]
+            rows = rows[ok]
+        else:
+            ok = np.zeros(0, dtype=bool)
+            starts = complete
+            rows = np.empty((0, length), dtype=np.uint8)
+        if starts.shape[0] > 1 and bool((np.diff(starts) < length).any()):
+            keep = _greedy(starts, length)  # rare: a valid frame overlapping another
+            starts, rows = starts[keep], rows[keep]
+        nf = int(starts.shape[0])
+        last_end = int(starts[-1]) + length if nf else 0
+
+        end = n
+        if not final:
+            pend = cand[(cand + length > n) & (cand >= last_end)]
+            if pend.shape[0]:
+                end = int(pend[0])
+            for q in range(max(last_end, n - self.max_header + 1), end):
+                rem = bytes(buf[q:n])
+                if any(len(rem) < len(h) and h.startswith(rem) for h in self.headers):
+                    end = q
+                    break
+
+        # Headers at examined positions (frame starts and skipped bytes) before `end`.
+        for f, pos in zip(self.known, found, strict=True):
+            pos = pos[pos < end]
+            if pos.shape[0]:
+                counters.headers_seen[f.name] += int(_not_covered(pos, starts, length).sum())
+        failed = complete[~ok]
+        failed = failed[failed < end]
+        if failed.shape[0]:
+            counters.crc_failures += int(_not_covered(failed, starts, length).sum())
+        if final:
+            counters.truncated += int(((cand + length > n) & (cand >= last_end)).sum())
+
+        counters.frames += nf
+        counters.bytes_skipped += end - nf * length
+        # Resync runs: maximal runs of skipped bytes; one open from the last scan continues.
+        if nf:
+            gaps = np.empty(nf + 1, dtype=np.int64)
+            gaps[0] = starts[0]
+            gaps[1:-1] = starts[1:] - starts[:-1] - length
+            gaps[-1] = end - last_end
+            runs = int((gaps > 0).sum())
+            if state.in_skip and gaps[0] > 0:
+                runs -= 1
+            state.in_skip = bool(gaps[-1] > 0)
+        else:
+            runs = 1 if (end > 0 and not state.in_skip) else 0
+            state.in_skip = state.in_skip or end > 0
+        counters.resyncs += runs
+
+        batch = self._unpack(rows, state, counters, host_time) if nf else self.empty()
+        return batch, end, starts
+
+    def _unpack(
+        self, rows: np.ndarray, state: Continuity, counters: DecoderCounters, host_time: float
+    ) -> FrameBatch:
+        fmt = self.fmt
+        fields = fmt.fields
+        k = rows.shape[0]
+        arr = np.ascontiguousarray(rows).view(fmt.dtype).reshape(k)
+        nan3 = np.full((k, 3), np.nan)
+
+        if "seq" in fields:
+            seq = arr["seq"].astype(np.int64)
+            prev = np.empty(k, dtype=np.int64)
+            prev[0] = state.prev_seq
+            prev[1:] = seq[:-1]
+            lost = (seq - prev - 1) % fmt.seq_modulus
+            if not state.started:
+                lost[0] = 0
+            steps = lost + 1
+            if not state.started:
+                steps[0] = 0
+            index = state.index + np.cumsum(steps)
+            state.prev_seq = int(seq[-1])
+            state.index = int(index[-1])
+            counters.sequence_gaps += int(np.count_nonzero(lost))
+            counters.frames_lost += int(lost.sum())
+        else:
+            seq = np.zeros(k, dtype=np.int64)
+            lost = np.zeros(k, dtype=np.int64)
+            index = None
+
+        if "timestamp" in fields:
+            raw_t = arr["timestamp"].astype(np.int64)
+            prev_t = np.empty(k, dtype=np.int64)
+            prev_t[0] = state.prev_ticks
+            prev_t[1:] = raw_t[:-1]
+            dt = (raw_t - prev_t) % fmt.timestamp_modulus
+            if not state.started:
+                dt[0] = 0
+            ticks = state.ticks + np.cumsum(dt)
+            state.prev_ticks = int(raw_t[-1])
+            state.ticks = int(ticks[-1])
+            time_s = ticks / (1.0 / fmt.timestamp_scale_s)
+        elif index is not None:
+            time_s = index / self.config.rate_hz
+        else:
+            time_s = np.full(k, np.nan)
+        state.started = True
+
+        if "status" in fields:
+            status = arr["status"].astype(np.uint8)
+            valid = (status & VALID_STATUS) == VALID_STATUS
+            counters.invalid_status += int(k - np.count_nonzero(valid))
+        else:
+            status = np.zeros(k, dtype=np.uint8)
+            valid = np.zeros(k, dtype=bool)
+
+        gyro = arr["gyro"].astype(np.float64) * self.gyro_factor if "gyro" in fields else nan3
+        accel = arr["accel"].astype(np.float64) * fmt.accel_scale if "accel" in fields else nan3
+        if "temperature" in fields:
+            temperature = arr["temperature"].astype(np.float64) * self.temp_scale
+        else:
+            temperature = np.full(k, np.nan)
+        mag = np.full((k, 3), np.nan)
+        if fmt.mux is not None:
+            slot = arr["slot"].astype(np.float64)
+            which = seq % fmt.mux.period
+            for i, meaning in enumerate(fmt.mux.meanings):
+                sel = which == i
+                if meaning == "temperature":
+                    temperature[sel] = slot[sel] * self.temp_scale
+                elif meaning in _MAG_AXES:
+                    mag[sel, _MAG_AXES[meaning]] = slot[sel] * fmt.mag_scale
+
+        extra = {name: arr[name].astype(spec[0]) for name, spec in self.extra_spec.items()}
+        return FrameBatch(
+            format=fmt.name,
+            seq=seq,
+            time_s=np.asarray(time_s, dtype=np.float64),
+            host_time_s=np.full(k, host_time, dtype=np.float64),
+            gyro_dph=gyro,
+            accel_g=accel,
+            temperature_c=temperature,
+            mag_gauss=mag,
+            status=status,
+            valid=valid,
+            lost_before=lost,
+            extra=extra,
+        )
+
+
+def decode_bulk_with_offsets(
+    data: bytes | bytearray | memoryview | np.ndarray,
+    fmt: str | FrameFormat = "kvh-a",
+    config: DecoderConfig = DEFAULT_CONFIG,
+) -> tuple[FrameBatch, DecoderCounters, np.ndarray]:
+    """decode_bulk, plus the byte offset of every frame's first byte."""
+    engine = Engine(fmt, config)
+    buf = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data
+    buf = buf.reshape(-1).view(np.uint8)
+    counters = engine.new_counters()
+    counters.bytes_in = int(buf.shape[0])
+    batch, _, starts = engine.scan(buf, True, Continuity(), counters, math.nan)
+    return batch, counters, starts
+
+
+def decode_bulk(
+    data: bytes | bytearray | memoryview | np.ndarray,
+    fmt: str | FrameFormat = "kvh-a",
+    config: DecoderConfig = DEFAULT_CONFIG,
+) -> tuple[FrameBatch, DecoderCounters]:
+    """Decode a whole capture at once (same frames and counters as streaming then flush()).
+
+    host_time_s is NaN; use drivers.capture.decode_capture to attach a side file's host times.
+    """
+    batch, counters, _ = decode_bulk_with_offsets(data, fmt, config)
+    return batch, counters
