@@ -74,6 +74,7 @@ class CalibrationResult:
     coefficients: CoefficientSet
     status: dict[str, np.ndarray]  # term name -> array of "estimated"/"held"
     uncertainty: dict[str, np.ndarray]  # term name -> 1-sigma (NaN where held)
+    covariance: np.ndarray  # (D, D) Gauss-Newton covariance of the flat parameters
     observability: ObservabilityReport
     problem: Problem
     theta: np.ndarray
@@ -306,6 +307,7 @@ def calibrate(
         coefficients=coeffs,
         status={n: status_flat[sl] for n, sl in slices.items()},
         uncertainty={n: sd[sl] for n, sl in slices.items()},
+        covariance=cov,
         observability=report,
         problem=problem,
         theta=theta,
