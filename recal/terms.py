@@ -25,8 +25,9 @@ import numpy as np
 AXES = ("x", "y", "z")
 #: Misalignment coefficient names in the order of conventions section 5 / seed 000 Table 3.
 MISALIGNMENT_NAMES = ("Exz", "Exy", "Eyz", "Eyx", "Ezy", "Ezx")
-#: (row, column) of each misalignment name in E (conventions section 1, seed 000 eq. 11).
-MISALIGNMENT_INDEX = ((0, 2), (0, 1), (1, 2), (1, 0), (2, 1), (2, 0))
+#: (row, column) of each name in E = [[0, Exz, Exy], [Eyz, 0, Eyx], [Ezy, Ezx, 0]] (conventions
+#: section 1, seed 000 eq. 11): the antisymmetric pairs are Exz/Eyz, Exy/Ezy, Eyx/Ezx.
+MISALIGNMENT_INDEX = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 
 Context = Mapping[str, np.ndarray]
 
