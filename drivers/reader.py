@@ -1,0 +1,203 @@
+"""A reader thread that owns a port: reads, decodes, delivers, and survives unplugging."""
+
+from __future__ import annotations
+
+import logging
+import queue as queue_mod
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+
+from .config import DEFAULT_CONFIG, DecoderConfig
+from .decoder import StreamDecoder
+from .diagnose import diagnose
+from .formats import FrameFormat
+from .frames import DecoderCounters, FrameBatch
+from .transport import DEFAULT_BAUD, check_url, open_serial
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReaderHealth:
+    """A snapshot of the reader's state.
+
+    last_frame_time: host monotonic time (time.monotonic()) of the last decoded frame, or None.
+    reconnect_count: successful re-opens after the first open. last_error: the last port or
+    delivery error as text. diagnosis: a plain-words warning when the stream looks like another
+    format (drivers.diagnose), else None.
+    """
+
+    running: bool
+    connected: bool
+    last_frame_time: float | None
+    reconnect_count: int
+    counters: DecoderCounters
+    last_error: str | None
+    diagnosis: str | None
+    dropped_batches: int
+
+
+class FrameReader:
+    """Read ``url`` in a thread, decode, and hand each non-empty FrameBatch to ``on_batch``
+    and/or put it on ``queue`` (never blocking: a full queue drops the batch and counts it).
+
+    On SerialException or OSError the port is closed, the partial frame dropped (sequence
+    continuity kept, so lost frames show as a sequence gap), and the port re-opened after a
+    bounded exponential back-off (backoff_initial doubling up to backoff_max). A URL whose
+    scheme is unknown fails at construction (DriverInputError); a missing device is retried.
+    """
+
+    def __init__(
+        self,
+        url: str,
+        fmt: str | FrameFormat = "kvh-a",
+        config: DecoderConfig = DEFAULT_CONFIG,
+        *,
+        on_batch: Callable[[FrameBatch], None] | None = None,
+        queue: queue_mod.Queue | None = None,
+        baudrate: int = DEFAULT_BAUD,
+        read_size: int = 4096,
+        timeout: float = 0.05,
+        backoff_initial: float = 0.05,
+        backoff_max: float = 2.0,
+        name: str = "frame-reader",
+    ) -> None:
+        check_url(url, must_exist=False)
+        self.url = url
+        self.baudrate = baudrate
+        self.read_size = read_size
+        self.timeout = timeout
+        self.backoff_initial = backoff_initial
+        self.backoff_max = backoff_max
+        self._on_batch = on_batch
+        self._queue = queue
+        self._decoder = StreamDecoder(fmt, config)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._port = None
+        self._connected = False
+        self._ever_connected = False
+        self._reconnects = 0
+        self._last_frame_time: float | None = None
+        self._last_error: str | None = None
+        self._dropped = 0
+
+    def start(self) -> FrameReader:
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> bool:
+        """Ask the thread to finish and wait up to ``timeout`` s; True if it has ended."""
+        self._stop.set()
+        port = self._port
+        if port is not None:
+            try:
+                port.cancel_read()
+            except Exception:  # noqa: BLE001 - best effort wake-up; the read timeout also ends it
+                pass
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def __enter__(self) -> FrameReader:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def health(self) -> ReaderHealth:
+        with self._lock:
+            counters = self._decoder.counters.copy()
+            return ReaderHealth(
+                running=self._thread.is_alive(),
+                connected=self._connected,
+                last_frame_time=self._last_frame_time,
+                reconnect_count=self._reconnects,
+                counters=counters,
+                last_error=self._last_error,
+                diagnosis=diagnose(counters, self._decoder.format),
+                dropped_batches=self._dropped,
+            )
+
+    def _open(self) -> bool:
+        try:
+            port = open_serial(self.url, baudrate=self.baudrate, timeout=self.timeout)
+        except ValueError as exc:  # malformed URL options: retrying cannot help
+            with self._lock:
+                self._last_error = f"bad port URL {self.url!r}: {exc}"
+            self._stop.set()
+            return False
+        except (serial.SerialException, OSError) as exc:
+            with self._lock:
+                self._last_error = f"cannot open {self.url}: {exc}"
+            return False
+        with self._lock:
+            self._port = port
+            self._connected = True
+            if self._ever_connected:
+                self._reconnects += 1
+            self._ever_connected = True
+        return True
+
+    def _drop_port(self, exc: BaseException | None) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.close()
+            except Exception:  # noqa: BLE001 - the port is already broken
+                pass
+        with self._lock:
+            self._connected = False
+            if exc is not None:
+                self._last_error = f"{self.url}: {exc}"
+            self._decoder.flush()
+
+    def _deliver(self, batch: FrameBatch) -> None:
+        if self._on_batch is not None:
+            try:
+                self._on_batch(batch)
+            except Exception as exc:  # noqa: BLE001 - a consumer bug must not kill the reader
+                log.exception("frame callback failed")
+                with self._lock:
+                    self._last_error = f"callback: {type(exc).__name__}: {exc}"
+        if self._queue is not None:
+            try:
+                self._queue.put_nowait(batch)
+            except queue_mod.Full:
+                with self._lock:
+                    self._dropped += 1
+
+    def _run(self) -> None:
+        delay = self.backoff_initial
+        try:
+            while not self._stop.is_set():
+                if self._port is None:
+                    if not self._open():
+                        self._stop.wait(delay)
+                        delay = min(delay * 2, self.backoff_max)
+                        continue
+                    delay = self.backoff_initial
+                port = self._port
+                try:
+                    waiting = port.in_waiting
+                    data = port.read(min(max(waiting, 1), self.read_size))
+                except (serial.SerialException, OSError) as exc:
+                    self._drop_port(exc)
+                    self._stop.wait(delay)
+                    continue
+                if not data:
+                    continue
+                now = time.monotonic()
+                with self._lock:
+                    batch = self._decoder.feed(data, host_time=now)
+                    if len(batch):
+                        self._last_frame_time = now
+                if len(batch):
+                    self._deliver(batch)
+        finally:
+            self._drop_port(None)
