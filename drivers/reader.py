@@ -127,14 +127,14 @@ class FrameReader:
     def _open(self) -> bool:
         try:
             port = open_serial(self.url, baudrate=self.baudrate, timeout=self.timeout)
-        except ValueError as exc:  # malformed URL options: retrying cannot help
-            with self._lock:
-                self._last_error = f"bad port URL {self.url!r}: {exc}"
-            self._stop.set()
-            return False
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError) as exc:  # e.g. unplugged: retry
             with self._lock:
                 self._last_error = f"cannot open {self.url}: {exc}"
+            return False
+        except Exception as exc:  # noqa: BLE001 - malformed URL options: retrying cannot help
+            with self._lock:
+                self._last_error = f"bad port URL {self.url!r}: {type(exc).__name__}: {exc}"
+            self._stop.set()
             return False
         with self._lock:
             self._port = port

@@ -99,6 +99,10 @@ def open_port(url: str, baudrate: int = DEFAULT_BAUD, timeout: float | None = 0.
         raise DriverInputError(f"bad port URL or setting {url!r}: {exc}") from None
     except (serial.SerialException, OSError) as exc:
         raise DriverInputError(_describe_open_error(url, exc)) from None
+    except Exception as exc:  # noqa: BLE001 - some pyserial handlers fail oddly on bad options
+        raise DriverInputError(
+            f"bad port URL or setting {url!r}: {type(exc).__name__}: {exc}"
+        ) from None
 
 
 def replay_url(path: str | os.PathLike[str], **options: object) -> str:

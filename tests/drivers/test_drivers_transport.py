@@ -1,0 +1,147 @@
+"""replay:// end to end, the reader thread, and bad ports/URLs."""
+
+from __future__ import annotations
+
+import queue
+import time
+
+import numpy as np
+import pytest
+from drivers_testkit import assert_batches_equal, make_frames
+
+import drivers
+from drivers.protocol_replay import parse_replay_url
+from drivers.reader import FrameReader
+from drivers.transport import open_port, replay_url
+
+
+def _wait_until(pred, timeout: float = 5.0, step: float = 0.01) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(step)
+    return pred()
+
+
+@pytest.fixture
+def capture(tmp_path):
+    data, _ = make_frames(3000, seed=21)
+    # some damage so the counters have something to say
+    buf = bytearray(data)
+    buf[36 * 100 + 7] ^= 0xFF
+    path = tmp_path / "cap.bin"
+    path.write_bytes(b"\x00\x13" + bytes(buf))
+    return path
+
+
+def test_replay_url_options(tmp_path) -> None:
+    url = replay_url(tmp_path / "a b.bin", speed="max", chunk="random", seed=4)
+    opts = parse_replay_url(url)
+    assert opts.path == str(tmp_path / "a b.bin") and opts.speed is None
+    assert opts.chunk == "random" and opts.seed == 4
+    assert parse_replay_url("replay://rel.bin?speed=2&rate=400&fmt=kvh-b").byte_rate == 2 * 400 * 40
+    with pytest.raises(ValueError, match="unknown replay:// option 'sped'"):
+        parse_replay_url("replay:///x.bin?sped=2")
+    with pytest.raises(ValueError, match="names no capture file"):
+        parse_replay_url("replay://")
+
+
+def test_replay_random_chunks_through_pyserial(capture) -> None:
+    port = open_port(replay_url(capture, speed="max", chunk="random", seed=7), timeout=0.01)
+    dec = drivers.StreamDecoder()
+    parts, sizes = [], []
+    while not (port.at_eof and port.in_waiting == 0):
+        data = port.read(4096)
+        sizes.append(len(data))
+        parts.append(dec.feed(data))
+    parts.append(dec.flush())
+    port.close()
+    assert len(set(sizes)) > 10 and max(sizes) <= 512
+    streamed = drivers.FrameBatch.concat(parts)
+    bulk, counters = drivers.decode_bulk(capture.read_bytes())
+    assert_batches_equal(bulk, streamed)
+    assert counters == dec.counters
+    assert counters.frames == 2999 and counters.crc_failures == 1 and counters.resyncs == 2
+
+
+def test_replay_real_time_pacing(tmp_path) -> None:
+    data, _ = make_frames(200, seed=3)
+    path = tmp_path / "c.bin"
+    path.write_bytes(data)
+    port = open_port(replay_url(path, speed=2.0, rate=1000), timeout=0.02)
+    t0 = time.monotonic()
+    got = bytearray()
+    while len(got) < len(data) and time.monotonic() - t0 < 5:
+        got += port.read(4096)
+    elapsed = time.monotonic() - t0
+    assert bytes(got) == data
+    assert 0.08 <= elapsed < 1.0  # 200 frames at 1000 Hz, twice real time: 0.1 s
+
+
+def test_reader_over_replay_end_to_end(capture) -> None:
+    q: queue.Queue = queue.Queue()
+    url = replay_url(capture, speed=20, chunk="random", chunk_max=300, seed=1)
+    with FrameReader(url, queue=q) as reader:
+        assert _wait_until(lambda: reader.health().counters.frames == 2999)
+        health = reader.health()
+    assert not reader.health().running
+    assert health.connected and health.reconnect_count == 0 and health.last_frame_time
+    got = drivers.FrameBatch.concat([q.get_nowait() for _ in range(q.qsize())])
+    bulk, _ = drivers.decode_bulk(capture.read_bytes())
+    assert_batches_equal(bulk, got)
+    assert np.all(np.diff(got.host_time_s) >= 0) and not np.isnan(got.host_time_s).any()
+
+
+def test_reader_reconnects_after_replay_error_eof(capture) -> None:
+    # eof=error behaves like an unplug at the end of the file: the reader re-opens and the
+    # capture plays again; the sequence jump back shows as a gap.
+    url = replay_url(capture, speed="max", eof="error")
+    with FrameReader(url, backoff_initial=0.01, backoff_max=0.05) as reader:
+        assert _wait_until(lambda: reader.health().reconnect_count >= 2)
+    h = reader.health()
+    assert h.counters.frames >= 2 * 2999 and h.counters.sequence_gaps >= 2
+    assert "end of capture" in h.last_error
+
+
+def test_nonexistent_port_is_a_clear_error() -> None:
+    with pytest.raises(drivers.DriverInputError) as err:
+        open_port("/dev/ttyDOESNOTEXIST0")
+    msg = str(err.value)
+    assert msg == "serial port /dev/ttyDOESNOTEXIST0 does not exist (is the device plugged in?)"
+
+
+@pytest.mark.parametrize(
+    ("url", "fragment"),
+    [
+        ("bogus://x", "unknown scheme 'bogus'://"),
+        ("replay:///nope/missing.bin", "replay capture file /nope/missing.bin does not exist"),
+        ("replay:///tmp/x.bin?speed=fast", "bad replay:// option value"),
+        ("replay:///tmp/x.bin?fmt=kvh-q", "unknown frame format 'kvh-q'"),
+        ("loop://?what", "bad port URL"),
+        ("", "no serial port given"),
+    ],
+)
+def test_bad_urls_are_clear_one_line_errors(url: str, fragment: str) -> None:
+    with pytest.raises(drivers.DriverInputError) as err:
+        open_port(url)
+    assert fragment in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_reader_rejects_unknown_scheme_and_reports_bad_options() -> None:
+    with pytest.raises(drivers.DriverInputError, match="unknown scheme"):
+        FrameReader("nope://x")
+    reader = FrameReader("replay:///tmp/x.bin?chunk=0").start()
+    assert _wait_until(lambda: not reader.health().running)
+    assert "bad port URL" in reader.health().last_error
+    assert reader.stop()
+
+
+def test_reader_retries_a_missing_device(tmp_path) -> None:
+    reader = FrameReader(str(tmp_path / "ttyMISSING"), backoff_initial=0.01, backoff_max=0.02)
+    reader.start()
+    time.sleep(0.1)
+    h = reader.health()
+    assert h.running and not h.connected and "cannot open" in h.last_error
+    assert reader.stop(timeout=1.0)
