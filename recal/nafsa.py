@@ -36,7 +36,10 @@ from recal.swarm import (
     SwarmBook,
     SwarmConfig,
     SwarmResult,
+    distances,
+    median_fish,
     move_toward,
+    swarm_mean,
     uniform,
 )
 
@@ -45,7 +48,7 @@ CF_MODES = ("adaptive", "literal", "constant")
 #: (CF_min, CF_max) of seed 000 Table 1, used by ``cf_mode="literal"``.
 LITERAL_CF = (0.000001, 0.999999)
 #: Default (CF_min, CF_max) of ``cf_mode="adaptive"`` (benchmarked, see ``NafsaConfig``).
-ADAPTIVE_CF = (0.5, 0.9)
+ADAPTIVE_CF = (0.3, 0.8)
 #: Default CF of ``cf_mode="constant"``.
 CONSTANT_CF = 0.9
 
@@ -57,13 +60,17 @@ class NafsaConfig(SwarmConfig):
     Attributes:
         cf_mode: how the Contraction Factor CF shrinks Visual (eqs. 4-5):
 
-            * ``"adaptive"`` (default): success-based CF. In an iteration where the run's
-              best-so-far did not improve, ``Visual *= CF`` with CF drawn by eq. 4 in
-              ``[cf_min, cf_max]`` (default ``ADAPTIVE_CF``); after an improving iteration
-              ``Visual *= cf_expand`` (default 1.0: keep), capped at the initial Visual. The paper
-              allows CF to be "a constant or a function"; this is a function of the run's
-              progress, so Visual tracks the distance to the optimum instead of collapsing on a
-              fixed schedule.
+            * ``"adaptive"`` (default): CF as a function of the run's progress (the paper allows
+              CF to be "a constant or a function"). In an iteration where the run's best-so-far
+              did not improve, ``Visual *= CF`` with CF drawn by eq. 4 in ``[cf_min, cf_max]``
+              (default ``ADAPTIVE_CF = (0.3, 0.8)``); after an improving iteration
+              ``Visual *= cf_success`` (default 0.9; values > 1 expand, capped at the initial
+              Visual). A contraction never takes Visual below ``visual_floor`` (0.5) times the
+              run's swarm spread, ``median_i Dis(X_i, X_Best) / sqrt(D)``: eqs. 8-9 move a fish
+              by at most Visual, so when Visual shrinks faster than the swarm gathers, the fish
+              left behind are stranded and the run freezes early (milder form of the literal
+              mode's failure). The floor is what removes the bad tail; see the module notes for
+              the benchmark behind these defaults.
             * ``"literal"``: eq. 4 with Table 1's ``CF_min = 1e-6``, ``CF_max = 0.999999``, applied
               every iteration and cumulatively (eq. 5). Since ``E[ln CF] = -1`` (ln of a uniform
               variate), Visual shrinks by about ``e^-1`` per iteration: after 15 iterations it is
@@ -72,14 +79,17 @@ class NafsaConfig(SwarmConfig):
             * ``"constant"``: ``Visual *= cf_max`` every iteration (default ``CONSTANT_CF``).
 
         cf_min, cf_max: bounds of eq. 4; ``None`` selects the mode's default.
-        cf_expand: adaptive mode only, factor applied to Visual after an improving iteration
-            (>= 1; capped at the initial Visual).
+        cf_success: adaptive mode only, factor applied to Visual after an iteration that
+            improved the run's best (capped at the initial Visual).
+        visual_floor: adaptive mode only, a contraction stops at ``visual_floor`` times the
+            swarm spread (0 disables the floor).
     """
 
     cf_mode: str = "adaptive"
     cf_min: float | None = None
     cf_max: float | None = None
-    cf_expand: float = 1.0
+    cf_success: float = 0.9
+    visual_floor: float = 0.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -88,8 +98,10 @@ class NafsaConfig(SwarmConfig):
         lo, hi = self.cf_bounds
         if not (0.0 < lo <= hi < 1.0 or (self.cf_mode == "constant" and 0.0 < hi <= 1.0)):
             raise ValueError(f"need 0 < cf_min <= cf_max < 1, got ({lo!r}, {hi!r})")
-        if not self.cf_expand >= 1.0:
-            raise ValueError(f"cf_expand must be >= 1, got {self.cf_expand!r}")
+        if not self.cf_success > 0.0:
+            raise ValueError(f"cf_success must be > 0, got {self.cf_success!r}")
+        if not self.visual_floor >= 0.0:
+            raise ValueError(f"visual_floor must be >= 0, got {self.visual_floor!r}")
 
     @property
     def cf_bounds(self) -> tuple[float, float]:
@@ -144,7 +156,10 @@ def nafsa(
         cf = cf_lo + (cf_hi - cf_lo) * uniform(rng, (idx.size,), 0.0)  # eq. 4
         if cfg.cf_mode == "adaptive":
             improved = book.best_f[idx] < best_before
-            si = np.where(improved, np.minimum(si * cfg.cf_expand, 1.0), si * cf)
+            spread = median_fish(distances(zi, book.best_z[idx])) / np.sqrt(dim)
+            floor = np.minimum(cfg.visual_floor * spread, si)
+            si = np.where(improved, np.minimum(si * cfg.cf_success, 1.0), si * cf)
+            si = np.maximum(si, floor)
         else:
             si = si * cf  # eq. 5
         z[idx], fz[idx], scale[idx] = zi, fi, si
@@ -164,18 +179,25 @@ def _individual_behaviour(
     """Prey (eq. 6, up to ``tries`` attempts) then free move (eq. 7) for all fish of ``runs``."""
     vis = scale[:, None, None]
     pending = np.ones(fz.shape, dtype=bool)
+    z, fz = z.copy(), fz.copy()
     for _ in range(tries):
-        zj = z + vis * uniform(rng, z.shape)
+        zj = uniform(rng, z.shape)
+        zj *= vis
+        zj += z  # X_j = X_i + Visual * U(-1, 1)
         fj = book.evaluate(zj, runs, pending)
         ok = pending & (fj <= fz)  # eq. 6: move when f(X_i) >= f(X_j)
-        z = np.where(ok[..., None], zj, z)
-        fz = np.where(ok, fj, fz)
+        np.copyto(z, zj, where=ok[..., None])
+        np.copyto(fz, fj, where=ok)
         pending &= ~ok
         if not pending.any():
             return z, fz
-    zf = z + vis * uniform(rng, z.shape)  # eq. 7, accepted even if worse
+    zf = uniform(rng, z.shape)
+    zf *= vis
+    zf += z  # eq. 7: X_i + Visual * U(-1, 1), accepted even if worse
     ff = book.evaluate(zf, runs, pending)
-    return np.where(pending[..., None], zf, z), np.where(pending, ff, fz)
+    np.copyto(z, zf, where=pending[..., None])
+    np.copyto(fz, ff, where=pending)
+    return z, fz
 
 
 def _group_behaviour(
@@ -187,10 +209,11 @@ def _group_behaviour(
     scale: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Move toward X_Center (eq. 8) or X_Best (eq. 9); X_Best takes X_Center if better (eq. 10)."""
-    center = z.mean(axis=1, keepdims=True)  # X_Center, (n, 1, D)
+    center = swarm_mean(z)[:, None, :]  # X_Center, (n, 1, D)
     f_center = book.evaluate(center, runs)  # the bulletin update applies eq. 10
     toward_center = f_center < fz  # (n, F)
-    best = book.best_z[runs][:, None, :]
-    target = np.where(toward_center[..., None], center, best)
-    z = move_toward(z, target, scale[:, None, None] * uniform(rng, z.shape, 0.0))
+    target = np.where(toward_center[..., None], center, book.best_z[runs][:, None, :])
+    length = uniform(rng, z.shape, 0.0)
+    length *= scale[:, None, None]  # Visual * Rand(0, 1), per dimension
+    z = move_toward(z, target, length)
     return z, book.evaluate(z, runs)
