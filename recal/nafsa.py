@@ -123,6 +123,8 @@ def nafsa(
     visual: np.ndarray,
     rng: np.random.Generator,
     config: NafsaConfig | None = None,
+    *,
+    with_runs: bool = False,
 ) -> SwarmResult:
     """Minimise ``objective`` with NAFSA from ``R`` batched, independent Monte Carlo runs.
 
@@ -133,12 +135,14 @@ def nafsa(
             initial swarm is ``center + visual * U(-1, 1)``.
         rng: the only source of randomness; the same seed gives the same result.
         config: :class:`NafsaConfig`.
+        with_runs: call ``objective(X, run)`` with the (P,) run index of every row, for
+            objectives that differ between runs (see :mod:`recal.swarm`).
 
     Returns:
         :class:`recal.swarm.SwarmResult`; ``visual_history`` holds Visual(t) / Visual(0).
     """
     cfg = NafsaConfig() if config is None else config
-    book = SwarmBook(objective, center, visual, cfg)
+    book = SwarmBook(objective, center, visual, cfg, with_runs)
     runs, dim, fish = book.runs, book.dim, cfg.fish
     cf_lo, cf_hi = cfg.cf_bounds
 

@@ -78,6 +78,8 @@ def oafsa(
     visual: np.ndarray,
     rng: np.random.Generator,
     config: OafsaConfig | None = None,
+    *,
+    with_runs: bool = False,
 ) -> SwarmResult:
     """Minimise ``objective`` with OAFSA (eqs. 1-3 + automated secondary initialisation).
 
@@ -85,7 +87,7 @@ def oafsa(
     ``Visual_G / Visual`` per run, including the restarts.
     """
     cfg = OafsaConfig() if config is None else config
-    book = SwarmBook(objective, center, visual, cfg)
+    book = SwarmBook(objective, center, visual, cfg, with_runs)
     runs, dim, fish = book.runs, book.dim, cfg.fish
     z = uniform(rng, (runs, fish, dim))
     fz = book.evaluate(z, np.arange(runs))

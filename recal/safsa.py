@@ -65,6 +65,8 @@ def safsa(
     visual: np.ndarray,
     rng: np.random.Generator,
     config: SafsaConfig | None = None,
+    *,
+    with_runs: bool = False,
 ) -> SwarmResult:
     """Minimise ``objective`` with the standard AFSA from ``R`` batched, independent runs.
 
@@ -75,9 +77,11 @@ def safsa(
             ``center + visual * U(-1, 1)`` and ``config.visual``/``config.step`` are in its units.
         rng: the only source of randomness; the same seed gives the same result.
         config: :class:`SafsaConfig`.
+        with_runs: call ``objective(X, run)`` with the (P,) run index of every row, for
+            objectives that differ between runs (see :mod:`recal.swarm`).
     """
     cfg = SafsaConfig() if config is None else config
-    book = SwarmBook(objective, center, visual, cfg)
+    book = SwarmBook(objective, center, visual, cfg, with_runs)
     runs = book.runs
     z = uniform(rng, (runs, cfg.fish, book.dim))
     fz = book.evaluate(z, np.arange(runs))

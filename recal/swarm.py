@@ -7,7 +7,12 @@ Conventions common to :func:`recal.nafsa.nafsa`, :func:`recal.safsa.safsa` and
   ``(P,)``; *lower is better* (the swarms minimise the indicator of seed 000 eq. 14). ``inf`` and
   ``nan`` mark invalid points; ``nan`` is treated as ``+inf``. Every behaviour step evaluates its
   whole batch (all fish of all live Monte Carlo runs) in one call, so the objective should be
-  vectorised over the rows of ``X``.
+  vectorised over the rows of ``X``. Rows are grouped by run in increasing run order, but a batch
+  does **not** hold the same number of rows per run (prey tries only evaluate the fish still
+  trying, a batch of centres has one row per run, terminated runs drop out). An objective that
+  depends on the run (e.g. each Monte Carlo run has its own base coefficients) is passed with
+  ``with_runs=True`` and is then called as ``objective(X, run)``, ``run`` being the ``(P,)``
+  integer run index (0 .. R-1) of every row.
 * **Monte Carlo runs in a batch.** ``R`` independent runs advance together: state arrays have shape
   ``(R, F, D)`` for ``F`` fish. Run ``r`` only ever sees its own centre, Visual, fish and best
   (X_Best / *bulletin*). The runs share one random stream, so run ``r``'s trajectory depends on
@@ -36,8 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-Objective = Callable[[np.ndarray], np.ndarray]
-"""``X (P, D) -> f (P,)``, lower is better; ``inf``/``nan`` for invalid points (``nan`` -> ``+inf``)."""
+Objective = Callable[..., np.ndarray]
+"""``X (P, D) -> f (P,)``, lower is better; ``inf``/``nan`` for invalid points (``nan`` -> ``+inf``).
+
+With ``with_runs=True`` the solvers call it as ``objective(X, run)`` with ``run`` (P,) the run
+index of each row."""
 
 STOP_THRESHOLD = "threshold"
 STOP_STALL = "stall"
@@ -147,9 +155,15 @@ class SwarmBook:
     """
 
     def __init__(
-        self, objective: Objective, center: np.ndarray, visual: np.ndarray, config: SwarmConfig
+        self,
+        objective: Objective,
+        center: np.ndarray,
+        visual: np.ndarray,
+        config: SwarmConfig,
+        with_runs: bool = False,
     ) -> None:
         self.objective = objective
+        self.with_runs = with_runs
         self.center, self.visual = prepare_problem(center, visual)
         self.config = config
         self.runs, self.dim = self.center.shape
@@ -182,7 +196,11 @@ class SwarmBook:
         p = x.shape[0]
         if p == 0:
             return np.full((n, k), np.inf)
-        fx = np.array(self.objective(x), dtype=float)  # a private copy, nan replaced below
+        if self.with_runs:
+            owner = np.repeat(runs, k) if mask is None else runs[np.nonzero(mask)[0]]
+            fx = np.array(self.objective(x, owner), dtype=float)
+        else:
+            fx = np.array(self.objective(x), dtype=float)  # a private copy, nan replaced below
         if fx.shape != (p,):
             raise ValueError(f"objective returned shape {fx.shape}, expected ({p},)")
         fx[np.isnan(fx)] = np.inf

@@ -285,3 +285,28 @@ def test_input_validation() -> None:
         OafsaConfig(max_reinit=-1)
     with pytest.raises(ValueError):
         SafsaConfig(delta=0.0)
+
+
+@pytest.mark.parametrize("name", sorted(SOLVERS))
+def test_run_aware_objective(name: str) -> None:
+    """with_runs=True passes each row's run index; each run then finds its own optimum."""
+    solver, config = SOLVERS[name]
+    optima = np.array([[0.5, -0.5], [-0.3, 0.2], [0.1, 0.4]])
+    seen: list[np.ndarray] = []
+
+    def per_run(x: np.ndarray, run: np.ndarray) -> np.ndarray:
+        assert run.shape == (x.shape[0],)
+        assert np.all(np.diff(run) >= 0)  # rows are grouped by run
+        seen.append(run)
+        return sphere(x - optima[run])
+
+    res = solver(
+        per_run,
+        np.zeros(2) + np.zeros((3, 1)),
+        np.ones(2),
+        np.random.default_rng(3),
+        config(fish=20, iterations=40),
+        with_runs=True,
+    )
+    assert set(np.concatenate(seen)) == {0, 1, 2}
+    np.testing.assert_allclose(res.best_x, optima, atol=0.1)
