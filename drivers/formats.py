@@ -153,6 +153,14 @@ def register(fmt: FrameFormat) -> FrameFormat:
     return fmt
 
 
+def unregister(name: str) -> None:
+    """Remove a format and its aliases (for tests and plug-ins that are unloaded)."""
+    fmt = _REGISTRY.get(name)
+    if fmt is not None:
+        for key in [k for k, v in _REGISTRY.items() if v is fmt]:
+            del _REGISTRY[key]
+
+
 def _load_builtin() -> None:
     global _builtin_loaded
     if not _builtin_loaded:
