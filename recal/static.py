@@ -283,6 +283,11 @@ class StaticDetector:
         out, self._out = self._out, []
         return out
 
+    @property
+    def buffered_frames(self) -> int:
+        """Frames held in memory (not yet decided, or needed by a moving window)."""
+        return int(self._data.shape[0])
+
     # ---- input ----------------------------------------------------------------------------
     def _rows(self, time_s, gyro, accel, temperature_c, valid, lost_before) -> np.ndarray:
         t = np.asarray(time_s, dtype=np.float64).reshape(-1)
