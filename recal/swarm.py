@@ -172,7 +172,7 @@ class SwarmBook:
         self.evaluations = 0
         self.active = np.ones(self.runs, dtype=bool)
         self.iterations = np.zeros(self.runs, dtype=int)
-        self.stop_reason = [""] * self.runs
+        self.stop_reason = np.full(self.runs, "", dtype=object)
         self._history: list[np.ndarray] = []
         self._scales: list[np.ndarray] = []
         self.iteration = 0
@@ -272,9 +272,10 @@ class SwarmBook:
             stop |= hit
         if cfg.stall_iterations > 0 and t >= cfg.stall_iterations:
             old = self._history[t - cfg.stall_iterations]
-            gain = old - self.best_f
-            with np.errstate(invalid="ignore"):
-                stalled = ~(gain > cfg.stall_tol * np.abs(old))
+            with np.errstate(invalid="ignore"):  # inf - inf: no progress
+                progress = old - self.best_f > cfg.stall_tol * np.abs(old)
+            progress |= np.isposinf(old) & (self.best_f < old)  # first finite value
+            stalled = ~progress
             stalled &= self.active & ~stop
             reason[stalled] = STOP_STALL
             stop |= stalled
@@ -282,8 +283,7 @@ class SwarmBook:
             last = self.active & ~stop
             reason[last] = STOP_MAX_ITERATIONS
             stop |= last
-        for r in np.flatnonzero(stop):  # bookkeeping of at most R strings, not a fish loop
-            self.stop_reason[r] = str(reason[r])
+        self.stop_reason[stop] = reason[stop]
         self.active &= ~stop
 
     def set_scale(self, runs: np.ndarray, scale: np.ndarray) -> None:
@@ -298,7 +298,7 @@ class SwarmBook:
             history=np.stack(self._history, axis=1),
             evaluations=int(self.evaluations),
             iterations=self.iterations.copy(),
-            stop_reason=list(self.stop_reason),
+            stop_reason=self.stop_reason.tolist(),
             visual_history=np.stack(self._scales, axis=1),
         )
 

@@ -10,7 +10,7 @@ import pytest
 from recal.nafsa import NafsaConfig, nafsa
 from recal.oafsa import OafsaConfig, oafsa
 from recal.safsa import SafsaConfig, safsa
-from recal.swarm import SwarmResult
+from recal.swarm import SwarmBook, SwarmConfig, SwarmResult
 
 SOLVERS = {
     "nafsa": (nafsa, NafsaConfig),
@@ -138,6 +138,15 @@ def test_threshold_and_stall_termination() -> None:
     res = nafsa(flat, centre, visual, np.random.default_rng(0), NafsaConfig(stall_iterations=4))
     assert res.stop_reason == ["stall"] * 3
     np.testing.assert_array_equal(res.iterations, 4)
+
+    # inf -> finite counts as progress, not as a stall.
+    book = SwarmBook(sphere, np.zeros((2, 1)), np.ones(1), SwarmConfig(stall_iterations=2))
+    book.record()
+    book.record()
+    book.best_f[0] = 1.0
+    book.record()
+    assert book.active.tolist() == [True, False]
+    assert book.stop_reason.tolist() == ["", "stall"]
 
     res = nafsa(sphere, centre, visual, np.random.default_rng(0), NafsaConfig(iterations=0))
     assert res.history.shape == (3, 1)
