@@ -210,6 +210,19 @@ class _Geometry:
         return 2 * self.h + 1
 
 
+@dataclass
+class _Piece:
+    """A trimmed run being summed: frame range, first/last times, value reference, sums."""
+
+    first: int
+    last: int
+    t_first: float
+    t_last: float
+    g_ref: np.ndarray
+    a_ref: np.ndarray
+    sums: np.ndarray
+
+
 class StaticDetector:
     """Incremental detector: ``feed`` chunks of frames, get windows as they close; ``flush``.
 
@@ -252,7 +265,7 @@ class StaticDetector:
         # Stage 3: trimmed runs and their running sums.
         self._next_m = 0
         self._prev_m = False
-        self._piece: dict | None = None
+        self._piece: _Piece | None = None
         self._out: list[Window] = []
 
     # ---- public ---------------------------------------------------------------------------
@@ -481,7 +494,7 @@ class StaticDetector:
         ok = still[:, _VALID] > 0
         self._gyro_ref = still[ok][:, _G].mean(axis=0)
         rep = self.report
-        rep.thresholds_learned = True
+        rep.thresholds_learned = cfg.accel_threshold is None or cfg.gyro_threshold is None
         rep.gyro_reference = self._gyro_ref.copy()
         self._learning = False
         pending, self._pending = self._pending, []
@@ -608,7 +621,7 @@ class StaticDetector:
             bad_ref = first_rows[:, _VALID] == 0  # an invalid first frame may hold garbage
             g_ref[bad_ref], a_ref[bad_ref] = self._g_ref, self._a_ref
             if cont:
-                t_first[0], g_ref[0], a_ref[0] = piece["t_first"], piece["g_ref"], piece["a_ref"]
+                t_first[0], g_ref[0], a_ref[0] = piece.t_first, piece.g_ref, piece.a_ref
             prev_in = np.concatenate(([self._prev_m], m[:-1]))[sel]
             feats = _piece_features(
                 rows[sel],
@@ -623,18 +636,18 @@ class StaticDetector:
             for k in range(seg_starts.shape[0]):
                 last = d0 + int(ends[k]) - 1
                 if k == 0 and cont:
-                    piece["sums"] = piece["sums"] + sums[0]
-                    piece["last"], piece["t_last"] = last, float(rows[ends[k] - 1, _T])
+                    piece.sums = piece.sums + sums[0]
+                    piece.last, piece.t_last = last, float(rows[ends[k] - 1, _T])
                 else:
-                    piece = {
-                        "first": d0 + int(seg_starts[k]),
-                        "last": last,
-                        "t_first": float(t_first[k]),
-                        "t_last": float(rows[ends[k] - 1, _T]),
-                        "g_ref": g_ref[k],
-                        "a_ref": a_ref[k],
-                        "sums": sums[k],
-                    }
+                    piece = _Piece(
+                        first=d0 + int(seg_starts[k]),
+                        last=last,
+                        t_first=float(t_first[k]),
+                        t_last=float(rows[ends[k] - 1, _T]),
+                        g_ref=g_ref[k],
+                        a_ref=a_ref[k],
+                        sums=sums[k],
+                    )
                 if k < seg_starts.shape[0] - 1 or not m[-1]:
                     self._finish(piece)
                     piece = None
@@ -645,19 +658,19 @@ class StaticDetector:
         if m.size:
             self._prev_m = bool(m[-1])
 
-    def _finish(self, piece: dict) -> None:
+    def _finish(self, piece: _Piece) -> None:
         """Turn a closed trimmed run into a window, or count why it is rejected."""
         g = self._geom
-        if piece["last"] - piece["first"] + 1 < g.required:
+        if piece.last - piece.first + 1 < g.required:
             return  # already counted as a short piece when its quiet run closed
-        s = piece["sums"]
+        s = piece.sums
         n = s[0]
         rejected = self.report.rejected
         if n < 2:
             rejected["invalid_status"] += 1
             return
         d_g, d_a = s[1:4] / n, s[7:10] / n
-        gyro = piece["g_ref"] + d_g
+        gyro = piece.g_ref + d_g
         limit = self.config.gyro_rate_max
         if limit is not None and float(np.linalg.norm(gyro - self._gyro_ref)) > limit:
             rejected["rotating"] += 1
@@ -674,13 +687,13 @@ class StaticDetector:
         t0 = self._t0
         self._out.append(
             Window(
-                start_s=piece["t_first"] - t0,
-                end_s=piece["t_last"] - t0,
-                start_index=piece["first"],
-                end_index=piece["last"],
+                start_s=piece.t_first - t0,
+                end_s=piece.t_last - t0,
+                start_index=piece.first,
+                end_index=piece.last,
                 samples=int(n),
                 gyro=gyro,
-                accel=piece["a_ref"] + d_a,
+                accel=piece.a_ref + d_a,
                 gyro_std=np.sqrt(var_g),
                 accel_std=np.sqrt(var_a),
                 temperature_c=float(temp),
