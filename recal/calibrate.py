@@ -250,7 +250,11 @@ def calibrate(
             if opt.paper:
                 phases = paper_phases(layout, typical)
             else:
-                phases = [whitened_phase(problem, theta0, typical, report)]
+
+                def phases(base: np.ndarray, problem=problem, report=report) -> list:
+                    mean = base.mean(axis=0)
+                    return [whitened_phase(problem, mean, typical, report, problem.objective(base))]
+
             cfg = opt.swarm_config
             if opt.paper and cfg is None and opt.method == "nafsa":
                 cfg = solver_for("nafsa")[1](cf_mode="literal")

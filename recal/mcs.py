@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recal.perf import tune_allocator
 from recal.phases import Phase
 from recal.problem import Problem
 from recal.swarm import SwarmConfig
@@ -51,11 +52,11 @@ class MCSResult:
 
 
 def _phase_objective(problem: Problem, base: np.ndarray, transform: np.ndarray):
-    R = base.shape[0]
+    """Objective over phase coordinates X (P, d); ``run`` (P,) says which run's base each row
+    belongs to (the swarms evaluate uneven batches: only fish still trying, one centre per run)."""
 
-    def f(X: np.ndarray) -> np.ndarray:
-        per = X.shape[0] // R
-        return problem.objective(np.repeat(base, per, axis=0) + X @ transform.T)
+    def f(X: np.ndarray, run: np.ndarray) -> np.ndarray:
+        return problem.objective(base[run] + X @ transform.T)
 
     return f
 
@@ -63,7 +64,7 @@ def _phase_objective(problem: Problem, base: np.ndarray, transform: np.ndarray):
 def run_mcs(
     problem: Problem,
     theta0: np.ndarray,
-    phases: Sequence[Phase],
+    phases: Sequence[Phase] | Callable[[np.ndarray], Sequence[Phase]],
     method: str = "nafsa",
     runs: int = 100,
     seed: int = 0,
@@ -75,9 +76,12 @@ def run_mcs(
 ) -> MCSResult:
     """Run ``runs`` independent phased optimisations from ``theta0`` and summarise them.
 
+    ``phases`` may be a function of the runs' current parameters (R, D), called at the start of
+    every cycle, so the search directions and Visual follow the runs (the whitened phase).
     Runs are processed ``batch`` at a time (progress is reported per batch). Each batch has its
     own generator spawned from ``seed``, so the result depends only on seed, runs and batch.
     """
+    tune_allocator()
     solver, config_cls = solver_for(method)
     config = config or config_cls()
     seeds = np.random.SeedSequence(seed).spawn((runs + batch - 1) // batch)
@@ -89,9 +93,10 @@ def run_mcs(
         hist = [problem.objective(base)[:, None]]
         prev = hist[0][:, 0]
         for cycle in range(cycles):
-            for ph in phases:
+            for ph in phases(base) if callable(phases) else phases:
                 f = _phase_objective(problem, base, ph.transform)
-                res = solver(f, np.zeros((R, ph.transform.shape[1])), ph.visual, rng, config)
+                center = np.zeros((R, ph.transform.shape[1]))
+                res = solver(f, center, ph.visual, rng, config, with_runs=True)
                 evaluations += res.evaluations
                 better = res.best_f < problem.objective(base)
                 base = np.where(better[:, None], base + res.best_x @ ph.transform.T, base)

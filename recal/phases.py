@@ -39,7 +39,7 @@ CATEGORY_ORDER = ("scale", "bias", "misalignment", "quadratic")
 class Phase:
     name: str
     transform: np.ndarray  # (D, d)
-    visual: np.ndarray  # (d,)
+    visual: np.ndarray  # (d,) or (R, d) per run
 
 
 def paper_phases(layout: ParameterLayout, typical: np.ndarray) -> list[Phase]:
@@ -68,17 +68,24 @@ def whitened_phase(
     theta: np.ndarray,
     typical: np.ndarray,
     report: ObservabilityReport,
+    objective_now: np.ndarray | None = None,
     visual_sigmas: float = 3.0,
 ) -> Phase:
     """Joint phase over the observable directions, in coordinates where 1 unit = 1 sigma.
 
     With J_B the whitened Jacobian along the observable basis, J_B = U S W^T, the swarm searches
-    y with theta = theta + (typical * basis) W S^-1 y, so the objective is ~|r0 + U y|^2.
-    The initial Visual is ``visual_sigmas`` x the typical change expressed in those units (s).
+    y with theta = theta + (typical * basis) W S^-1 y, so chi^2 ~ chi^2_min + |y - y*|^2.
+    The initial Visual is ``visual_sigmas`` x the typical change expressed in those units (s),
+    capped per run by the distance the current objective allows: the swarm objective is
+    ~chi^2 / (M - 1), so |y - y*| <= sqrt((M - 1) * objective).
     """
     T = typical[:, None] * report.basis
     J = jacobian(problem, theta, T.T)
     _, s, Wt = np.linalg.svd(J, full_matrices=False)
     s = np.maximum(s, 1e-12 * s.max())
     transform = T @ Wt.T / s
-    return Phase("observable (whitened)", transform, visual_sigmas * np.maximum(s, 1.0))
+    visual = visual_sigmas * np.maximum(s, 1.0)
+    if objective_now is not None:
+        radius = 1.5 * np.sqrt(max(problem.M - 1, 1) * np.asarray(objective_now, float))
+        visual = np.minimum(visual[None, :], np.maximum(radius, 1.0)[:, None])
+    return Phase("observable (whitened)", transform, visual)

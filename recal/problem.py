@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -122,9 +123,13 @@ class Problem:
     def model(self, sensor: str) -> Model:
         return next(m for m in self.models if m.sensor == sensor)
 
-    @property
+    @cached_property
     def layout(self) -> ParameterLayout:
         return ParameterLayout(self.models)
+
+    @cached_property
+    def _slices(self) -> dict[str, slice]:
+        return self.layout.model_slices()
 
     @property
     def M(self) -> int:
@@ -158,24 +163,40 @@ class Problem:
     # ---- evaluation (batched) -----------------------------------------------------------
     def physical(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """theta (P, D) -> sensor -> estimated true inputs (P, M, 3)."""
+        return {s: np.stack(c, axis=-1) for s, c in self._components(theta).items()}
+
+    def _components(self, theta: np.ndarray) -> dict[str, list[np.ndarray]]:
         theta = np.atleast_2d(theta)
-        sl = self.layout.model_slices()
+        sl = self._slices
         return {
-            m.sensor: m.inverse(theta[:, sl[m.sensor]], self.output(m.sensor), self.ctx)
+            m.sensor: m.inverse_components(
+                theta[:, sl[m.sensor]], self._outputs[m.sensor], self.ctx
+            )
             for m in self.models
         }
 
-    def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
-        """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units)."""
-        x = self.physical(theta)
+    @cached_property
+    def _outputs(self) -> dict[str, np.ndarray]:
+        return {s: self.output(s) for s in self.sensors}
+
+    def _invariant_values(self, theta: np.ndarray, squared: bool) -> dict[str, np.ndarray]:
+        """|x|^2 (squared) or |x| per triad, and w.f, each (P, M)."""
+        x = self._components(theta)
         out = {}
         for name in self.invariant_names:
             if name == "dot":
-                val = np.einsum("pmi,pmi->pm", x["gyro"], x["accel"])
+                g, a = x["gyro"], x["accel"]
+                out[name] = g[0] * a[0] + g[1] * a[1] + g[2] * a[2]
             else:
-                val = np.linalg.norm(x[name.split("_")[0]], axis=2)
-            out[name] = val - self.reference(name)
+                v = x[name.split("_")[0]]
+                sq = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+                out[name] = sq if squared else np.sqrt(sq)
         return out
+
+    def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units)."""
+        vals = self._invariant_values(theta, squared=False)
+        return {n: v - self.reference(n) for n, v in vals.items()}
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         """Whitened residuals (P, R), R = M x number of invariants, for least squares."""
@@ -184,12 +205,11 @@ class Problem:
 
     def squared_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Seed eq. (13): |x_hat|^2 - ref^2 per position (P, M); the dot product stays linear."""
-        raw = self.raw_residuals(theta)
-        out = {}
-        for n, r in raw.items():
-            ref = self.reference(n)
-            out[n] = r if n == "dot" else r * (r + 2.0 * ref)
-        return out
+        vals = self._invariant_values(theta, squared=True)
+        return {
+            n: v - (self.reference(n) if n == "dot" else self.reference(n) ** 2)
+            for n, v in vals.items()
+        }
 
     def indicator(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Seed 000 eq. (14) per invariant: sqrt(sum((|x|^2 - ref^2)^2) / (M - 1)), shape (P,)."""
@@ -198,6 +218,10 @@ class Problem:
             n: np.sqrt(np.sum(r * r, axis=1) / denom)
             for n, r in self.squared_residuals(theta).items()
         }
+
+    @cached_property
+    def _floor(self) -> dict[str, float]:
+        return self.indicator_floor()
 
     def indicator_floor(self) -> dict[str, float]:
         """Expected eq. (14) value from window noise alone, per invariant."""
@@ -213,7 +237,7 @@ class Problem:
         With one triad this is eq. (14) squared up to a constant, so it has the same minimiser;
         with both it weighs the gyro, accel and dot invariants by their noise.
         """
-        floor = self.indicator_floor()
+        floor = self._floor
         ind = self.indicator(theta)
         total = sum((ind[n] / floor[n]) ** 2 for n in self.invariant_names)
         return np.where(np.isfinite(total), total, np.inf)

@@ -239,7 +239,6 @@ class StaticDetector:
         self._received = 0
         self._t0: float | None = None
         self._t_last = -math.inf
-        self._has_temperature = False
         self._geom: _Geometry | None = None
         self._g_ref: np.ndarray | None = None
         self._a_ref: np.ndarray | None = None
@@ -281,9 +280,31 @@ class StaticDetector:
         """Add frames (time in s, gyro and accel (N, 3)); return the windows that closed."""
         if self._finished:
             raise RecalInputError("the detector was flushed; start a new one for a new stream")
-        rows = self._rows(time_s, gyro, accel, temperature_c, valid, lost_before)
-        for lo in range(0, rows.shape[0], _SLICE):
-            self._append(rows[lo : lo + _SLICE])
+        t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+        n = t.shape[0]
+        g = np.asarray(gyro, dtype=np.float64)
+        a = np.asarray(accel, dtype=np.float64)
+        if g.shape != (n, 3) or a.shape != (n, 3):
+            raise RecalInputError(
+                f"gyro and accel must have shape ({n}, 3) like time_s; got {g.shape} and {a.shape}"
+            )
+        extra = {
+            "temperature_c": temperature_c,
+            "valid": valid,
+            "lost_before": lost_before,
+        }
+        for name, values in extra.items():
+            if values is not None:
+                extra[name] = np.asarray(values).reshape(-1)
+                if extra[name].shape[0] != n:
+                    raise RecalInputError(
+                        f"{name} has {extra[name].shape[0]} values for {n} frames"
+                    )
+        # Slice by slice: bounded temporaries however much is fed at once.
+        for lo in range(0, n, _SLICE):
+            sl = slice(lo, lo + _SLICE)
+            part = {k: (None if v is None else v[sl]) for k, v in extra.items()}
+            self._append(self._rows(t[sl], g[sl], a[sl], **part))
             self._process(final=False)
         out, self._out = self._out, []
         return out
@@ -302,17 +323,22 @@ class StaticDetector:
         return int(self._data.shape[0])
 
     # ---- input ----------------------------------------------------------------------------
-    def _rows(self, time_s, gyro, accel, temperature_c, valid, lost_before) -> np.ndarray:
-        t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+    def _rows(
+        self,
+        t: np.ndarray,
+        g: np.ndarray,
+        a: np.ndarray,
+        temperature_c: np.ndarray | None,
+        valid: np.ndarray | None,
+        lost_before: np.ndarray | None,
+    ) -> np.ndarray:
+        """Checked frames as buffer rows; updates the references and the report's counts."""
         n = t.shape[0]
-        g = np.asarray(gyro, dtype=np.float64)
-        a = np.asarray(accel, dtype=np.float64)
-        if g.shape != (n, 3) or a.shape != (n, 3):
-            raise RecalInputError(
-                f"gyro and accel must have shape ({n}, 3) like time_s; got {g.shape} and {a.shape}"
-            )
         if not np.isfinite(t).all():
-            raise RecalInputError(f"time_s has a NaN or infinite value at frame {self._first(t)}")
+            i = int(np.argmax(~np.isfinite(t)))
+            raise RecalInputError(
+                f"time_s has a NaN or infinite value at frame {self._received + i}"
+            )
         steps = np.diff(t, prepend=self._t_last)
         if n and (steps <= 0).any():
             i = int(np.argmax(steps <= 0))
@@ -326,14 +352,10 @@ class StaticDetector:
         rows[:, _A] = a
         ok = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
         if valid is not None:
-            ok &= self._column(valid, n, "valid").astype(bool)
+            ok &= valid.astype(bool)
         rows[:, _VALID] = ok
-        if temperature_c is not None:
-            self._has_temperature = True
-            rows[:, _TEMP] = self._column(temperature_c, n, "temperature_c")
-        else:
-            rows[:, _TEMP] = np.nan
-        lost = np.zeros(n) if lost_before is None else self._column(lost_before, n, "lost_before")
+        rows[:, _TEMP] = np.nan if temperature_c is None else temperature_c
+        lost = np.zeros(n) if lost_before is None else lost_before.astype(np.float64)
         if (lost < 0).any() or not np.isfinite(lost).all():
             raise RecalInputError("lost_before must hold frame counts >= 0")
         rows[:, _LOST] = lost
@@ -357,17 +379,6 @@ class StaticDetector:
         if self._t0 is not None:
             rep.duration_s = self._t_last - self._t0
         return rows
-
-    @staticmethod
-    def _column(values: np.ndarray, n: int, name: str) -> np.ndarray:
-        col = np.asarray(values, dtype=np.float64).reshape(-1)
-        if col.shape[0] != n:
-            raise RecalInputError(f"{name} has {col.shape[0]} values for {n} frames")
-        return col
-
-    @staticmethod
-    def _first(t: np.ndarray) -> int:
-        return int(np.argmax(~np.isfinite(t)))
 
     def _append(self, rows: np.ndarray) -> None:
         self._data = np.concatenate((self._data, rows)) if self._data.size else rows.copy()

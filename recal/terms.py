@@ -29,6 +29,8 @@ MISALIGNMENT_NAMES = ("Exz", "Exy", "Eyz", "Eyx", "Ezy", "Ezx")
 #: section 1, seed 000 eq. 11): the antisymmetric pairs are Exz/Eyz, Exy/Ezy, Eyx/Ezx.
 MISALIGNMENT_INDEX = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 
+_ROWS, _COLS = (np.array(ix) for ix in zip(*MISALIGNMENT_INDEX, strict=True))
+
 Context = Mapping[str, np.ndarray]
 
 
@@ -129,8 +131,7 @@ class MisalignmentTerm(Term):
 
     def matrix(self, p: np.ndarray) -> np.ndarray:
         E = np.zeros((p.shape[0], 3, 3))
-        for k, (i, j) in enumerate(MISALIGNMENT_INDEX):
-            E[:, i, j] = p[:, k]
+        E[:, _ROWS, _COLS] = p
         return E
 
 
