@@ -223,6 +223,17 @@ def test_recording_shorter_than_the_still_period(shared_data, tmp_path, capsys):
     assert_clean_failure(rc, err, outdir, "initial still period")
 
 
+def test_no_window_found(shared_data, tmp_path, capsys):
+    outdir = tmp_path / "out"
+    outdir.mkdir()
+    rc, err = run_positions(
+        capsys, shared_data / ACC, shared_data / GYRO, "--format", "xsens-text",
+        "--init-still", "50", "--min-duration", "60", "-o", outdir / "p.csv",
+    )  # fmt: skip
+    assert_clean_failure(rc, err, outdir, "no static window found in 51175 frames")
+    assert "too_short 38" in err
+
+
 def test_output_folder_missing(shared_data, tmp_path, capsys):
     rc, err = run_positions(
         capsys, shared_data / ACC, shared_data / GYRO, "--format", "xsens-text",

@@ -144,13 +144,16 @@ def run(args: argparse.Namespace) -> int:
         frames, notes = _read_kvh(args.inputs, args.format, args.rate)
     detector = StaticDetector(config)
     windows = _detect(detector, frames)
-    for line in notes + detector.report.summary_lines():
-        print(f"recal positions: {line}", file=sys.stderr)
+    report = detector.report
     if not windows:
+        rejected = ", ".join(f"{k} {v}" for k, v in report.rejected.items() if v) or "none"
         raise RecalInputError(
-            f"no static window found in {detector.report.frames} frames: check the thresholds "
-            "(--init-still, --threshold-k) and --min-duration"
+            f"no static window found in {report.frames} frames (rejected: {rejected}): check "
+            "the thresholds (--init-still, --threshold-k) and --min-duration"
         )
+    # Printed only on success: a failed run prints its one-line error and nothing else.
+    for line in notes + report.summary_lines():
+        print(f"recal positions: {line}", file=sys.stderr)
     table = Positions.from_columns(windows_to_columns(windows), source=str(out))
     atomic_write(out, table.to_csv_text())
     durations = np.array([w.duration_s for w in windows])
@@ -173,7 +176,8 @@ def _detect(detector: StaticDetector, frames: dict[str, np.ndarray | None]) -> l
     n = frames["time_s"].shape[0]
     bar = progress_bar(n, "positions") if n >= _PROGRESS_MIN_FRAMES else None
     if bar is not None:
-        bar.unit = "frame"
+        bar.unit = "frame"  # the shared helper counts runs
+        bar.refresh()
     windows: list[Window] = []
     try:
         for lo in range(0, n, _CHUNK):
