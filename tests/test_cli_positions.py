@@ -243,6 +243,24 @@ def test_output_folder_missing(shared_data, tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_time_jumps_in_the_text_pair_are_gaps(shared_data, tmp_path, capsys):
+    # Drop 20 frames (0.2 s) in the middle of the still period: a gap splits that window.
+    for name in (ACC, GYRO):
+        lines = (shared_data / name).read_text().splitlines(keepends=True)
+        (tmp_path / name).write_text("".join(lines[:3000] + lines[3020:]))
+    out = tmp_path / "p.csv"
+    args = ("--format", "xsens-text", "--init-still", "20", "-o", out)
+    rc, err = run_positions(capsys, tmp_path / ACC, tmp_path / GYRO, *args)
+    assert rc == 0, err
+    assert "lost 20 in 1 gaps" in err
+    table = Positions.from_csv_text(out.read_text())
+    assert len(table) == 39  # the still period is cut in two
+    rc, err = run_positions(capsys, tmp_path / ACC, tmp_path / GYRO, *args, "--max-gap", "20")
+    assert rc == 0, err
+    table = Positions.from_csv_text(out.read_text())
+    assert len(table) == 38 and table.columns["frames_lost"][0] == 20
+
+
 def test_existing_output_survives_a_failed_run(shared_data, tmp_path, capsys):
     out = tmp_path / "p.csv"
     out.write_text("previous\n")

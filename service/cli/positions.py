@@ -201,13 +201,20 @@ def _read_xsens(inputs: list[str]) -> tuple[dict[str, np.ndarray | None], list[s
         )
     acc_path, gyro_path = _order_pair(inputs)
     data = load_xsens_pair(acc_path, gyro_path)
+    t = data["time_s"]
+    # The text has no sequence number: a time step of about k sample periods means k - 1 frames
+    # were lost there (timestamp jitter of a fraction of a period rounds away).
+    lost = np.zeros(t.shape[0], dtype=np.int64)
+    if t.shape[0] > 2:
+        steps = np.diff(t)
+        lost[1:] = np.maximum(np.rint(steps / np.median(steps)) - 1, 0)
     frames = {
-        "time_s": data["time_s"],
+        "time_s": t,
         "gyro": data["gyro_counts"],
         "accel": data["accel_counts"],
         "temperature_c": None,
         "valid": None,
-        "lost_before": None,
+        "lost_before": lost,
     }
     return frames, [f"xsens-text: accel {acc_path}, gyro {gyro_path} (raw counts)"]
 
