@@ -71,15 +71,17 @@ def run_mcs(
     config: SwarmConfig | None = None,
     cycles: int = 3,
     stall_tol: float = 1e-3,
-    batch: int = 25,
+    batch: int = 100,
     progress: Callable[[int], None] | None = None,
 ) -> MCSResult:
     """Run ``runs`` independent phased optimisations from ``theta0`` and summarise them.
 
     ``phases`` may be a function of the runs' current parameters (R, D), called at the start of
     every cycle, so the search directions and Visual follow the runs (the whitened phase).
-    Runs are processed ``batch`` at a time (progress is reported per batch). Each batch has its
-    own generator spawned from ``seed``, so the result depends only on seed, runs and batch.
+    Runs are processed ``batch`` at a time; larger batches mean fewer, larger objective calls.
+    Each batch has its own generator spawned from ``seed``, so the result depends only on seed,
+    runs and batch. ``progress`` receives the number of runs completed (fractions while a batch
+    goes through its phases).
     """
     tune_allocator()
     solver, config_cls = solver_for(method)
@@ -92,8 +94,10 @@ def run_mcs(
         base = np.repeat(theta0[None], R, axis=0)
         hist = [problem.objective(base)[:, None]]
         prev = hist[0][:, 0]
+        reported = 0.0
         for cycle in range(cycles):
-            for ph in phases(base) if callable(phases) else phases:
+            current = phases(base) if callable(phases) else phases
+            for ph in current:
                 f = _phase_objective(problem, base, ph.transform)
                 center = np.zeros((R, ph.transform.shape[1]))
                 res = solver(f, center, ph.visual, rng, config, with_runs=True)
@@ -101,6 +105,10 @@ def run_mcs(
                 better = res.best_f < problem.objective(base)
                 base = np.where(better[:, None], base + res.best_x @ ph.transform.T, base)
                 hist.append(np.minimum.accumulate(res.history[:, 1:], axis=1))
+                if progress:
+                    step = R / (len(current) * cycles)
+                    progress(step)
+                    reported += step
             now = problem.objective(base)
             used_cycles = max(used_cycles, cycle + 1)
             # seed: repeat the phases until the indicator stops improving
@@ -111,7 +119,7 @@ def run_mcs(
         objectives.append(problem.objective(base))
         histories.append(np.minimum.accumulate(np.concatenate(hist, axis=1), axis=1))
         if progress:
-            progress(R)
+            progress(R - reported)
     width = max(h.shape[1] for h in histories)
     history = np.concatenate(
         [np.pad(h, ((0, 0), (0, width - h.shape[1])), mode="edge") for h in histories]

@@ -121,24 +121,32 @@ class Model:
 
     def inverse_components(
         self, theta: np.ndarray, output: np.ndarray, ctx: Context
-    ) -> list[np.ndarray]:
-        """Outputs N (M, 3) -> the three components of the true input, each (P, M).
+    ) -> np.ndarray:
+        """Outputs N (M, 3) -> the true input, component-major: shape (3, P, M).
 
         Component-major arrays keep the hot loop on contiguous memory; :meth:`inverse` stacks
         them. Inverts N = gain * (A x + h(x) + offset): x = A^-1 (N / gain - offset - h(x)).
         """
         gain, A, offset, nonlinear = self._parts(theta, ctx)
         Ainv = inv3(A)
+        if not nonlinear and gain.shape[1] == 1 and offset.shape[1] == 1:
+            # constant per parameter vector: x = B N + c with B = A^-1 diag(1/gain),
+            # c = -A^-1 offset -- one (3P x 3) @ (3 x M) matrix product for the whole batch
+            B = (Ainv / gain).transpose(1, 0, 2).reshape(-1, 3)  # rows (i, p); column j / gain_j
+            c = -np.einsum("pij,pj->ip", Ainv, offset[:, 0, :])
+            X = (B @ output.T).reshape(3, -1, output.shape[0])
+            X += c[..., None]
+            return X
         u = [output[None, :, i] / gain[..., i] - offset[..., i] for i in range(3)]
         x = _apply3_components(Ainv, u)
         for _ in range(NONLINEAR_STEPS if nonlinear else 0):
             h = sum(t.nonlinear(p, np.stack(x, axis=-1), ctx) for t, p in nonlinear)
             x = _apply3_components(Ainv, [u[i] - h[..., i] for i in range(3)])
-        return x
+        return np.stack(x)
 
     def inverse(self, theta: np.ndarray, output: np.ndarray, ctx: Context) -> np.ndarray:
         """Outputs N (M, 3) -> true inputs x (P, M, 3) for each parameter vector in theta (P, size)."""
-        return np.stack(self.inverse_components(theta, output, ctx), axis=-1)
+        return np.moveaxis(self.inverse_components(theta, output, ctx), 0, -1)
 
     def forward(self, theta: np.ndarray, x: np.ndarray, ctx: Context) -> np.ndarray:
         """True inputs x (M, 3) or (P, M, 3) -> outputs N (P, M, 3)."""

@@ -163,9 +163,10 @@ class Problem:
     # ---- evaluation (batched) -----------------------------------------------------------
     def physical(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """theta (P, D) -> sensor -> estimated true inputs (P, M, 3)."""
-        return {s: np.stack(c, axis=-1) for s, c in self._components(theta).items()}
+        return {s: np.moveaxis(c, 0, -1) for s, c in self._components(theta).items()}
 
-    def _components(self, theta: np.ndarray) -> dict[str, list[np.ndarray]]:
+    def _components(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """sensor -> true inputs, component-major (3, P, M)."""
         theta = np.atleast_2d(theta)
         sl = self._slices
         return {
@@ -185,11 +186,10 @@ class Problem:
         out = {}
         for name in self.invariant_names:
             if name == "dot":
-                g, a = x["gyro"], x["accel"]
-                out[name] = g[0] * a[0] + g[1] * a[1] + g[2] * a[2]
+                out[name] = np.einsum("ipm,ipm->pm", x["gyro"], x["accel"])
             else:
                 v = x[name.split("_")[0]]
-                sq = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+                sq = np.einsum("ipm,ipm->pm", v, v)
                 out[name] = sq if squared else np.sqrt(sq)
         return out
 
