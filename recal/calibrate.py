@@ -178,15 +178,51 @@ def build_models(
     return tuple(Model.seed(s, [t for t in extra if t.sensor == s]) for s in sensors)
 
 
+def ellipsoid_start(output: np.ndarray, reference: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per-axis scale (output/input unit) and bias (input units) from an axis-aligned
+    ellipsoid fit to the outputs: a x^2 + b y^2 + c z^2 + d x + e y + f z = 1 by least squares.
+
+    Returns None when the positions do not span the sphere well enough for the fit (then the
+    caller falls back to a common scale); the solver refines the result anyway.
+    """
+    if len(output) < 8:
+        return None
+    span = np.ptp(output, axis=0)
+    centre = output.mean(axis=0)
+    u = (output - centre) / np.where(span > 0, span, 1.0)  # conditioned coordinates
+    G = np.column_stack([u**2, u])
+    coef, *_ = np.linalg.lstsq(G, np.ones(len(u)), rcond=None)
+    sv = np.linalg.svd(G, compute_uv=False)
+    a, d = coef[:3], coef[3:]
+    if sv[-1] < 1e-6 * sv[0] or np.any(a <= 0):
+        return None
+    c = -d / (2 * a)
+    g = 1 + np.sum(a * c * c)
+    if g <= 0:
+        return None
+    radius = np.sqrt(g / a) * span  # semi-axes in output units
+    scale = radius / reference
+    bias = (centre + c * span) / scale
+    return scale, bias
+
+
 def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: float) -> np.ndarray:
-    """A prior from the data alone: a common scale per triad from the median output norm."""
+    """A prior from the data alone: scale and bias per axis from an ellipsoid fit of each triad's
+    outputs (a common scale from the median norm when the positions cannot support the fit);
+    misalignment and every other term neutral."""
     theta = layout.neutral()
     refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
-    for name, sl in layout.term_slices().items():
-        sensor, key = name.split(".", 1)
-        if key == "scale":
-            out = positions.gyro if sensor == "gyro" else positions.accel
-            theta[sl] = np.median(np.linalg.norm(out, axis=1)) / refs[sensor]
+    slices = layout.term_slices()
+    for m in layout.models:
+        out = positions.gyro if m.sensor == "gyro" else positions.accel
+        fit = ellipsoid_start(out, refs[m.sensor])
+        if fit is None:
+            theta[slices[f"{m.sensor}.scale"]] = (
+                np.median(np.linalg.norm(out, axis=1)) / refs[m.sensor]
+            )
+        else:
+            theta[slices[f"{m.sensor}.scale"]] = fit[0]
+            theta[slices[f"{m.sensor}.bias"]] = fit[1]
     return theta
 
 
@@ -225,7 +261,7 @@ def calibrate(
         prior_source = str(opt.prior.metadata.get("source", "given prior"))
     else:
         theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
-        prior_source = "data-derived (common scale from the median norm; bias, misalignment zero)"
+        prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
     problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0)
     needed = generic_rank(problem) + 1
     if problem.n_residuals < needed:

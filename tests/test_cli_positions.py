@@ -67,34 +67,9 @@ def test_inputs_are_told_apart_by_name(xsens_csv, shared_data, tmp_path, capsys)
 def test_accel_norm_fit_on_the_xsens_windows(xsens_csv, tmp_path, capsys):
     """Issue acceptance: the accel norm fit brings the gravity-norm residual to ~1e-3 m/s^2."""
     out, _ = xsens_csv
-    table = Positions.from_csv_text(out.read_text())
-    # Raw 16-bit counts: start from the span of the window means (scale = half the span per g,
-    # bias = the centre in g), as a user would from the data sheet.
-    lo, hi = table.accel.min(axis=0), table.accel.max(axis=0)
-    scale = (hi - lo) / 2
-    prior = {
-        "accel": {
-            "scale": scale.tolist(),
-            "bias": ((hi + lo) / 2 / scale).tolist(),
-            "misalignment": dict.fromkeys(("Exz", "Exy", "Eyz", "Eyx", "Ezy", "Ezx"), 0.0),
-            "quadratic": [0.0, 0.0, 0.0],
-        }
-    }
-    prior_path = tmp_path / "prior.json"
-    prior_path.write_text(json.dumps(prior))
-    rc = main(
-        [
-            "calibrate",
-            str(out),
-            "--sensor",
-            "accel",
-            "--prior",
-            str(prior_path),
-            "--latitude",
-            str(XSENS_LATITUDE),
-            "--json",
-        ]
-    )
+    # Raw 16-bit counts, no prior: the engine starts from an ellipsoid fit of the outputs.
+    args = ["calibrate", str(out), "--sensor", "accel", "--latitude", str(XSENS_LATITUDE)]
+    rc = main([*args, "--json"])
     captured = capsys.readouterr()
     assert rc == 0, captured.err
     residual = json.loads(captured.out)["residuals"]["accel_norm"]
