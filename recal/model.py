@@ -119,9 +119,7 @@ class Model:
                 nonlinear.append((t, p))
         return gain, A, offset, nonlinear
 
-    def inverse_components(
-        self, theta: np.ndarray, output: np.ndarray, ctx: Context
-    ) -> np.ndarray:
+    def inverse_components(self, theta: np.ndarray, output: np.ndarray, ctx: Context) -> np.ndarray:
         """Outputs N (M, 3) -> the true input, component-major: shape (3, P, M).
 
         Component-major arrays keep the hot loop on contiguous memory; :meth:`inverse` stacks
