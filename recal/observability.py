@@ -57,6 +57,7 @@ class ObservabilityReport:
     basis: np.ndarray
     null: np.ndarray
     estimated: np.ndarray  # (D,) bool
+    share: np.ndarray  # (D,) fraction of each parameter inside the observable subspace
     held_directions: list[str]
     verdict: str  # "full", "partial" or "insufficient"
     message: str
@@ -70,6 +71,9 @@ class ObservabilityReport:
             "condition": self.condition,
             "singular_values": [float(s) for s in self.singular_values],
             "held_directions": self.held_directions,
+            "partially_held": [
+                n for n, e, sh in zip(self.names, self.estimated, self.share) if e and sh < 0.99
+            ],
             "criterion": (
                 f"typical-scaled whitened Jacobian SVD at the solution with misalignment at zero; "
                 f"observable when s >= {INFO_MIN} and s >= {RCOND:g} * s_max"
@@ -142,7 +146,7 @@ def analyze(
             f"{rank} of {D} directions observable; {D - rank} held at the prior: " + "; ".join(held)
         )
     return ObservabilityReport(
-        names, s_full, rank, cond, basis, null, estimated, held, verdict, message
+        names, s_full, rank, cond, basis, null, estimated, share, held, verdict, message
     )
 
 

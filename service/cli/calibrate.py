@@ -168,7 +168,9 @@ def format_result(r: CalibrationResult) -> str:
         unit = term.unit_of(term.params.index(name.rsplit(".", 1)[1]))
         sig = f"{sd[i]:13.4g}" if np.isfinite(sd[i]) else f"{'-':>13s}"
         mc = f"{r.mcs.std[i]:11.3g} " if r.mcs is not None else ""
-        lines.append(f"{name:34s} {r.theta[i]:16.9g} {sig} {mc} {status[i]}  [{unit}]")
+        partial = status[i] == "estimated" and r.observability.share[i] < 0.99
+        state = "estimated*" if partial else status[i]
+        lines.append(f"{name:34s} {r.theta[i]:16.9g} {sig} {mc} {state:10s} [{unit}]")
     lines.append("")
     lines.append(f"{'invariant':12s} {'RMS before':>12s} {'RMS after':>12s} {'noise floor':>12s}")
     for n, v in r.residual_summary().items():
@@ -179,6 +181,11 @@ def format_result(r: CalibrationResult) -> str:
     lines.append(f"chi2_red = {r.chi2_red:.3f}")
     lines.append("")
     lines.append(f"observability: {r.observability.verdict} -- {r.observability.message}")
+    if any(r.observability.share[r.observability.estimated] < 0.99):
+        lines.append(
+            "estimated*: only part of this coefficient is seen (e.g. the sum Exz+Eyz); the "
+            "rest is held at the prior"
+        )
     lines.append(f"prior: {r.prior_source}")
     for note in r.notes:
         lines.append(f"note: {note}")
