@@ -1,0 +1,283 @@
+"""Sample-level simulation of a static multi-position session: holds joined by slews.
+
+Where :mod:`recal.simulate` draws the *window means* directly, this module simulates every
+sample, so the whole chain (frames, detector, window statistics, calibration) can be tested on
+data whose truth is known. Frames and conventions are those of :mod:`recal.simulate`: ENU
+navigation frame, body-to-ENU rotations ``C_nb``, Earth rate ``w_n = [0, Omega cos L,
+Omega sin L]`` deg/h and specific force ``f_n = [0, 0, g]`` in g, resolved in the body frame as
+``x_b = C_nb^T x_n``.
+
+Between two holds the body turns about the fixed axis of the relative rotation with a
+raised-cosine angle profile ``theta(u) = Theta (1 - cos(pi u)) / 2``, ``u`` in [0, 1): the rate
+is zero at both ends, so the session has no step in rate. The IMU sits at the rotation centre:
+no lever-arm (centripetal or tangential) acceleration.
+
+Pure numpy and the engine's own model; no I/O and nothing of the drivers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from recal.coefficients import CoefficientSet
+from recal.errors import RecalInputError
+from recal.model import Model
+from recal.positions import Positions
+from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.simulate import NoiseSpec, TemperatureSpec, design_orientations
+from recal.terms import Term
+
+#: Longest session simulated at once, in samples. Each sample holds about 20 float64 values
+#: (inputs, outputs, noise, model temporaries), so this bounds the peak memory near 2 GB.
+MAX_SAMPLES = 10_000_000
+
+_RAD_S_TO_DEG_H = math.degrees(1.0) * 3600.0
+
+
+@dataclass(frozen=True, eq=False)
+class Session:
+    """A simulated recording, one row per sample at ``rate_hz``.
+
+    time_s: (N,) sample times from the session start (sample i at i / rate_hz).
+    gyro_out: (N, 3) gyro output in the model's output units (N_g: deg/h times K_g).
+    accel_out: (N, 3) accel output in output units (N_a: g times K_a).
+    temperature_c: (N,) sensor temperature, degC (not quantised).
+    static: (N,) True inside a hold (the truth the detector is judged against).
+    gyro_in_dph / accel_in_g: (N, 3) true noise-free inputs in the body frame (deg/h, g).
+    hold_first / hold_last: (M,) indices of the first and last sample of each hold (inclusive).
+    orientations: (M, 3, 3) body-to-ENU rotation C_nb of each hold.
+    """
+
+    time_s: np.ndarray
+    gyro_out: np.ndarray
+    accel_out: np.ndarray
+    temperature_c: np.ndarray
+    static: np.ndarray
+    gyro_in_dph: np.ndarray
+    accel_in_g: np.ndarray
+    hold_first: np.ndarray
+    hold_last: np.ndarray
+    orientations: np.ndarray
+    rate_hz: float
+    latitude_deg: float
+    height_m: float
+    gravity_g: float
+
+    def __len__(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def n_holds(self) -> int:
+        return int(self.hold_first.shape[0])
+
+    @property
+    def hold_start_s(self) -> np.ndarray:
+        """(M,) time of the first sample of each hold, s."""
+        return self.hold_first / self.rate_hz
+
+    @property
+    def hold_end_s(self) -> np.ndarray:
+        """(M,) time of the last sample of each hold, s."""
+        return self.hold_last / self.rate_hz
+
+
+def simulate_session(
+    truth: CoefficientSet,
+    design: str = "24",
+    n_positions: int | None = None,
+    latitude_deg: float = 45.0,
+    height_m: float = 0.0,
+    seed: int = 0,
+    rate_hz: float = 1000.0,
+    window_s: float = 20.0,
+    slew_s: float = 5.0,
+    first_hold_s: float | None = None,
+    noise: NoiseSpec | None = None,
+    temperature: TemperatureSpec | None = None,
+    hidden: Sequence[Term] = (),
+) -> Session:
+    """Simulate every sample of a static multi-position session.
+
+    Timing comes from ``rate_hz`` (samples/s), ``window_s`` (length of each hold, s),
+    ``slew_s`` (length of each slew, s) and ``first_hold_s`` (length of the first hold, default
+    ``window_s``; make it longer so a detector can learn its thresholds from an initial still
+    period). From ``noise`` only the densities are used (``arw_deg_rt_h``, ``vrw_ug_rt_hz``),
+    turned into a per-sample sigma at ``rate_hz``; its window/slew/rate fields are ignored.
+    The orientations are :func:`recal.simulate.design_orientations` with the same ``seed``, so
+    they match :func:`recal.simulate.simulate_positions`. ``hidden`` terms are added to the
+    truth model as in that function (value from ``truth`` or the term's typical magnitude).
+    """
+    noise = noise or NoiseSpec()
+    temperature = temperature or TemperatureSpec()
+    first_hold_s = window_s if first_hold_s is None else first_hold_s
+    for name, value in (
+        ("rate_hz", rate_hz),
+        ("window_s", window_s),
+        ("slew_s", slew_s),
+        ("first_hold_s", first_hold_s),
+    ):
+        if not (math.isfinite(value) and value > 0):
+            raise RecalInputError(f"session {name} must be a positive number, not {value}")
+    rng = np.random.default_rng(seed)
+    C_nb = design_orientations(design, n_positions, rng)
+    M = len(C_nb)
+    n_hold = np.full(M, round(window_s * rate_hz), dtype=np.int64)
+    n_hold[0] = round(first_hold_s * rate_hz)
+    n_slew = round(slew_s * rate_hz)
+    if n_hold.min() < 2 or n_slew < 2:
+        raise RecalInputError(
+            "holds and slews need at least 2 samples each: raise --rate, --window or --slew"
+        )
+    hold_first = np.concatenate(([0], np.cumsum(n_hold[:-1] + n_slew)))
+    hold_last = hold_first + n_hold - 1
+    N = int(hold_last[-1] + 1)
+    if N > MAX_SAMPLES:
+        raise RecalInputError(
+            f"the session would have {N} samples (limit {MAX_SAMPLES}): lower the rate, the "
+            "window or slew length, or the number of positions"
+        )
+
+    lat = math.radians(latitude_deg)
+    g = normal_gravity_g(latitude_deg, height_m)
+    w_n = np.array([0.0, OMEGA_IE_DEG_H * math.cos(lat), OMEGA_IE_DEG_H * math.sin(lat)])
+    f_n = np.array([0.0, 0.0, g])
+    gyro_in = np.empty((N, 3))
+    accel_in = np.empty((N, 3))
+    static = np.zeros(N, dtype=bool)
+    # Slew profile, the same for every slew: u in [0, 1) over the slew's samples.
+    u = np.arange(n_slew) / n_slew
+    shape = 0.5 * (1.0 - np.cos(np.pi * u))  # theta / Theta
+    shape_rate = 0.5 * np.pi * np.sin(np.pi * u) * (rate_hz / n_slew)  # d(theta/Theta)/dt, 1/s
+    for k in range(M):  # a loop over positions; every sample operation below is vectorised
+        hold = slice(int(hold_first[k]), int(hold_last[k]) + 1)
+        w_b, f_b = C_nb[k].T @ w_n, C_nb[k].T @ f_n
+        gyro_in[hold], accel_in[hold] = w_b, f_b
+        static[hold] = True
+        if k == M - 1:
+            break
+        axis, angle = axis_angle(C_nb[k].T @ C_nb[k + 1])
+        theta = angle * shape
+        slew = slice(hold.stop, hold.stop + n_slew)
+        # Body rate = turn rate about the (body-fixed) axis + Earth rate in the current body frame.
+        turn_dph = np.outer(angle * shape_rate * _RAD_S_TO_DEG_H, axis)
+        gyro_in[slew] = _rotate_into_body(w_b, axis, theta) + turn_dph
+        accel_in[slew] = _rotate_into_body(f_b, axis, theta)
+
+    time_s = np.arange(N) / rate_hz
+    temp_c = temperature.start_c + temperature.slope_c_per_h * time_s / 3600.0
+    ctx = {
+        "temperature_c": temp_c,
+        "temperature_rate_c_per_h": np.full(N, temperature.slope_c_per_h),
+        "time_h": time_s / 3600.0,
+        "specific_force_g": accel_in,
+    }
+    noise_at_rate = replace(noise, rate_hz=rate_hz)
+    out = {}
+    for sensor, x in (("gyro", gyro_in), ("accel", accel_in)):
+        theta_vec, model = _truth_vector(truth, sensor, hidden)
+        noisy = x + rng.normal(size=(N, 3)) * noise_at_rate.per_sample_sigma(sensor)
+        out[sensor] = model.forward(theta_vec, noisy, ctx)[0]
+    return Session(
+        time_s=time_s,
+        gyro_out=out["gyro"],
+        accel_out=out["accel"],
+        temperature_c=temp_c,
+        static=static,
+        gyro_in_dph=gyro_in,
+        accel_in_g=accel_in,
+        hold_first=hold_first,
+        hold_last=hold_last,
+        orientations=C_nb,
+        rate_hz=float(rate_hz),
+        latitude_deg=float(latitude_deg),
+        height_m=float(height_m),
+        gravity_g=g,
+    )
+
+
+def session_positions(session: Session, sensors: Sequence[str] = ("gyro", "accel")) -> Positions:
+    """The true window means: one row per hold, every sample of the hold averaged.
+
+    Columns as ``recal positions`` writes them (conventions section 4): start/end times of the
+    hold's first and last samples, sample count, mean and per-sample standard deviation (ddof 1)
+    per axis, mean temperature and its least-squares slope (degC/h).
+    """
+    rows = []
+    for a, b in zip(session.hold_first, session.hold_last + 1, strict=True):
+        t = session.time_s[a:b]
+        temp = session.temperature_c[a:b]
+        dt = t - t.mean()
+        slope_c_per_s = float(dt @ (temp - temp.mean()) / (dt @ dt))
+        row = {
+            "start_s": t[0],
+            "end_s": t[-1],
+            "samples": float(b - a),
+            "temperature_c": float(temp.mean()),
+            "temperature_rate_c_per_h": slope_c_per_s * 3600.0,
+        }
+        for sensor in sensors:
+            values = session.gyro_out[a:b] if sensor == "gyro" else session.accel_out[a:b]
+            mean, std = values.mean(axis=0), values.std(axis=0, ddof=1)
+            for i, axis in enumerate("xyz"):
+                row[f"{sensor}_{axis}"] = mean[i]
+                row[f"{sensor}_{axis}_std"] = std[i]
+        rows.append(row)
+    cols = {name: np.array([r[name] for r in rows]) for name in rows[0]}
+    return Positions.from_columns(cols, source="simulated session (true holds)")
+
+
+def axis_angle(R: np.ndarray) -> tuple[np.ndarray, float]:
+    """Unit axis and angle (rad, in [0, pi]) of a rotation matrix: R = exp([axis]x angle).
+
+    Goes through the quaternion (Shepperd's pivot on the largest of w, x, y, z) so it stays
+    accurate at 0 and at 180 degrees, where the axis from the antisymmetric part alone fails.
+    """
+    tr = float(np.trace(R))
+    pivot = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    if pivot == 0:
+        w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
+        q = [w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w)]
+        q.append((R[1, 0] - R[0, 1]) / (4 * w))
+    else:
+        i = pivot - 1
+        j, k = (i + 1) % 3, (i + 2) % 3
+        v = np.empty(3)
+        v[i] = 0.5 * math.sqrt(max(1.0 + 2.0 * R[i, i] - tr, 0.0))
+        w = (R[k, j] - R[j, k]) / (4 * v[i])
+        v[j] = (R[i, j] + R[j, i]) / (4 * v[i])
+        v[k] = (R[i, k] + R[k, i]) / (4 * v[i])
+        q = [w, *v]
+    qa = np.asarray(q, dtype=float)
+    qa /= np.linalg.norm(qa)
+    if qa[0] < 0:
+        qa = -qa  # the shorter way round: angle <= pi
+    s = float(np.linalg.norm(qa[1:]))
+    if s == 0.0:
+        return np.array([0.0, 0.0, 1.0]), 0.0
+    return qa[1:] / s, 2.0 * math.atan2(s, float(qa[0]))
+
+
+def _rotate_into_body(v: np.ndarray, axis: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """A navigation-fixed vector (given in the body frame at theta = 0) in the body frame after
+    the body turned by theta (N,) about ``axis``: Rodrigues with -theta, shape (N, 3)."""
+    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+    return v * c - np.cross(axis, v) * s + np.outer(1.0 - c[:, 0], axis * float(axis @ v))
+
+
+def _truth_vector(
+    truth: CoefficientSet, sensor: str, hidden: Sequence[Term]
+) -> tuple[np.ndarray, Model]:
+    extra = [t for t in hidden if t.sensor == sensor]
+    model = Model.seed(sensor, extra)
+    vals = truth.copy()
+    for t in extra:
+        if vals.get(t.name) is None:
+            vals.values[t.name] = np.asarray(t.typical, float)
+    missing = [t.name for t in model.terms if vals.get(t.name) is None]
+    if missing:
+        raise RecalInputError(f"truth lacks {', '.join(missing)}")
+    return np.concatenate([vals.values[t.name] for t in model.terms])[None], model
