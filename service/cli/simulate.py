@@ -1,10 +1,21 @@
-"""``recal simulate``: write a positions CSV from a simulated static session."""
+"""``recal simulate``: write a positions CSV, or a byte-level capture, of a simulated session.
+
+Without ``--capture`` the window means are drawn directly (:mod:`recal.simulate`). With
+``--capture OUT.bin`` every sample is simulated (:mod:`recal.session`: holds joined by slews) and
+written as the frames a KVH sends (:mod:`service.capture_sim`), optionally damaged; ``-o`` then
+writes the true window means of the same session's holds.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
 
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
@@ -12,13 +23,21 @@ from recal.simulate import DESIGNS, NoiseSpec, TemperatureSpec, simulate_positio
 from recal.terms import catalogue_terms
 from service.cli.common import atomic_write, load_coefficients, parse_effects
 
+#: Hold and slew lengths of a capture when not given: a sample-level session is held in memory,
+#: so shorter than the window-mean defaults (100 s windows, 30 s between them).
+CAPTURE_WINDOW_S = 20.0
+CAPTURE_SLEW_S = 5.0
+
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "simulate",
         help="simulate a static multi-position session and write its positions CSV",
         description="Simulate the window means of a static session (conventions section 4). "
-        "Truth defaults to seed 000 Table 2 (gyro) and the project's accelerometer stand-in.",
+        "Truth defaults to seed 000 Table 2 (gyro) and the project's accelerometer stand-in. "
+        "With --capture, simulate every sample (static holds joined by slews) and write the "
+        "bytes a KVH would send (delta angle in rad, accel in g, whole-degC temperature); the "
+        "truth then defaults to a unit that outputs physical units (scale ~1).",
     )
     p.add_argument(
         "--design",
@@ -57,10 +76,23 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--window",
         type=float,
-        default=NoiseSpec.window_s,
-        help="static window length, s (default %(default)s)",
+        default=None,
+        help=f"static window length, s (default {NoiseSpec.window_s:g}; "
+        f"{CAPTURE_WINDOW_S:g} with --capture)",
     )
-    p.add_argument("--rate", type=float, default=NoiseSpec.rate_hz, help="sample rate, Hz")
+    p.add_argument(
+        "--slew",
+        type=float,
+        default=None,
+        help=f"time between windows (the slew), s (default {NoiseSpec.slew_s:g}; "
+        f"{CAPTURE_SLEW_S:g} with --capture)",
+    )
+    p.add_argument(
+        "--rate",
+        type=float,
+        default=NoiseSpec.rate_hz,
+        help="sample rate, Hz; with --capture the device's data rate (default %(default)s)",
+    )
     p.add_argument("--temp-start", type=float, default=TemperatureSpec.start_c, help="degC")
     p.add_argument(
         "--temp-slope",
@@ -69,7 +101,38 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="temperature ramp, degC/h (default %(default)s)",
     )
     p.add_argument("--truth-out", metavar="FILE", help="also write the truth used, as JSON")
-    p.add_argument("-o", "--output", required=True, metavar="POSITIONS.csv")
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="POSITIONS.csv",
+        help="positions CSV (with --capture: the true means over each static hold)",
+    )
+    c = p.add_argument_group("byte-level capture")
+    c.add_argument(
+        "--capture",
+        metavar="OUT.bin",
+        help="write the session sample by sample as a device capture (for `recal positions`)",
+    )
+    c.add_argument(
+        "--capture-format",
+        choices=("kvh-a", "kvh-b", "kvh-c"),
+        default="kvh-a",
+        help="frame format of the capture (default %(default)s)",
+    )
+    c.add_argument(
+        "--first-hold",
+        type=float,
+        metavar="S",
+        help="length of the first hold, s (default: the window); make it longer than the "
+        "--init-still period `recal positions` learns its thresholds from",
+    )
+    c.add_argument(
+        "--bit-flips", type=int, default=0, metavar="N", help="frames with one flipped bit"
+    )
+    c.add_argument(
+        "--garbage", type=int, default=0, metavar="N", help="runs of random bytes inserted"
+    )
+    c.add_argument("--drop", type=int, default=0, metavar="N", help="frames dropped entirely")
     p.set_defaults(func=run)
     return p
 
@@ -81,34 +144,134 @@ def run(args: argparse.Namespace) -> int:
         if name not in catalogue:
             raise RecalInputError(f"unknown effect '{name}'; known: {', '.join(catalogue)}")
         hidden.append(catalogue[name])
-    if args.window <= 0 or args.rate <= 0 or args.arw < 0 or args.vrw < 0:
-        raise RecalInputError("--window and --rate must be positive, --arw and --vrw non-negative")
-    truth = load_coefficients(args.truth, catalogue) if args.truth else CoefficientSet.seed_truth()
-    base = CoefficientSet.seed_truth()
+    if args.output is None and args.capture is None:
+        raise RecalInputError("give -o POSITIONS.csv, --capture OUT.bin, or both")
+    damage_flags = (args.bit_flips, args.garbage, args.drop)
+    if args.capture is None and any(damage_flags):
+        raise RecalInputError("--bit-flips, --garbage and --drop damage a capture: add --capture")
+    if min(damage_flags) < 0:
+        raise RecalInputError("--bit-flips, --garbage and --drop must be >= 0")
+    capture = args.capture is not None
+    window, slew = args.window, args.slew
+    if window is None:
+        window = CAPTURE_WINDOW_S if capture else NoiseSpec.window_s
+    if slew is None:
+        slew = CAPTURE_SLEW_S if capture else NoiseSpec.slew_s
+    if window <= 0 or slew <= 0 or args.rate <= 0 or args.arw < 0 or args.vrw < 0:
+        raise RecalInputError(
+            "--window, --slew and --rate must be positive, --arw and --vrw non-negative"
+        )
+    if args.first_hold is not None and (not capture or args.first_hold <= 0):
+        raise RecalInputError("--first-hold needs --capture and must be positive")
+    for out in (args.output, args.capture, args.truth_out):
+        # Checked up front: a missing folder must not leave some outputs written and not others.
+        folder = Path(out).parent if out is not None else None
+        if folder is not None and str(folder) and not folder.is_dir():
+            raise RecalInputError(f"output folder {folder} does not exist")
+    if capture:
+        from service.capture_sim import kvh_like_truth  # the drivers only when asked for
+
+        base = kvh_like_truth(np.random.default_rng(args.seed))
+    else:
+        base = CoefficientSet.seed_truth()
+    truth = load_coefficients(args.truth, catalogue) if args.truth else base.copy()
     for name, v in base.values.items():  # a partial truth file keeps the defaults elsewhere
         truth.values.setdefault(name, v)
     sensors = ("gyro", "accel") if args.sensor == "both" else (args.sensor,)
-    positions = simulate_positions(
+    noise = NoiseSpec(args.arw, args.vrw, window, slew, rate_hz=args.rate)
+    temperature = TemperatureSpec(args.temp_start, args.temp_slope)
+    if capture:
+        positions = _write_capture(args, truth, noise, temperature, hidden, sensors)
+    else:
+        positions = simulate_positions(
+            truth,
+            args.design,
+            args.positions,
+            args.latitude,
+            args.height,
+            args.seed,
+            sensors,
+            noise,
+            temperature,
+            hidden,
+        )
+    if args.output is not None:
+        atomic_write(args.output, positions.to_csv_text())
+    if args.truth_out:
+        used = truth.copy()
+        for t in hidden:
+            used.values.setdefault(t.name, list(t.typical))
+        atomic_write(args.truth_out, json.dumps(used.to_json_dict(catalogue), indent=2) + "\n")
+    if args.output is not None:
+        print(
+            f"recal simulate: wrote {len(positions)} positions ({args.design} design, "
+            f"seed {args.seed}{'; true means over the static holds' if capture else ''}) to "
+            f"{args.output}",
+            file=sys.stderr,
+        )
+    return 0
+
+
+def _write_capture(args, truth, noise, temperature, hidden, sensors):
+    """Simulate the session sample by sample, write the capture; return the true hold means."""
+    from drivers import DecoderConfig
+    from recal.session import session_positions, simulate_session
+    from service.capture_sim import Damage, session_to_kvh
+
+    session = simulate_session(
         truth,
         args.design,
         args.positions,
         args.latitude,
         args.height,
         args.seed,
-        sensors,
-        NoiseSpec(args.arw, args.vrw, args.window, rate_hz=args.rate),
-        TemperatureSpec(args.temp_start, args.temp_slope),
-        hidden,
+        rate_hz=args.rate,
+        window_s=noise.window_s,
+        slew_s=noise.slew_s,
+        first_hold_s=args.first_hold,
+        noise=noise,
+        temperature=temperature,
+        hidden=hidden,
     )
-    atomic_write(args.output, positions.to_csv_text())
-    if args.truth_out:
-        used = truth.copy()
-        for t in hidden:
-            used.values.setdefault(t.name, list(t.typical))
-        atomic_write(args.truth_out, json.dumps(used.to_json_dict(catalogue), indent=2) + "\n")
+    damage = Damage(bit_flips=args.bit_flips, garbage=args.garbage, drops=args.drop)
+    if damage.frames > len(session) - 1:
+        raise RecalInputError(
+            f"--bit-flips, --garbage and --drop touch {damage.frames} frames; "
+            f"the session has only {len(session)}"
+        )
+    # The damage draws from its own stream, so adding damage leaves the session unchanged.
+    data, info = session_to_kvh(
+        session,
+        args.capture_format,
+        DecoderConfig(rate_hz=args.rate),
+        damage,
+        np.random.default_rng((args.seed, 1)),
+    )
+    _atomic_write_bytes(args.capture, data)
+    first_s = (session.hold_last[0] - session.hold_first[0] + 1) / args.rate
     print(
-        f"recal simulate: wrote {len(positions)} positions ({args.design} design, "
-        f"seed {args.seed}) to {args.output}",
+        f"recal simulate: wrote {info.frames - info.dropped.shape[0]} {info.format} frames "
+        f"({info.bytes} bytes, {session.n_holds} static holds, {len(session) / args.rate:.1f} s "
+        f"at {args.rate:g} Hz; damage: {info.bit_flips.shape[0]} bit flips, "
+        f"{info.garbage.shape[0]} garbage runs, {info.dropped.shape[0]} frames dropped) to "
+        f"{args.capture}; read it with `recal positions {args.capture} --format "
+        f"{info.format} --rate {args.rate:g} --init-still {max(1, int(0.5 * first_s))}`",
         file=sys.stderr,
     )
-    return 0
+    return session_positions(session, sensors)
+
+
+def _atomic_write_bytes(path: str, data: bytes) -> None:
+    """Write via a temporary file in the same folder and os.replace: never a half-written file."""
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    if not folder.is_dir():
+        raise RecalInputError(f"output folder {folder} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
