@@ -109,7 +109,9 @@ class CaptureInfo:
         """Sequence gaps a decoder reports: runs of consecutive missing frames (shorter than the
         128-frame sequence period, which holds for a handful of scattered frames)."""
         m = self.missing
-        return int(m.shape[0] and 1 + np.count_nonzero(np.diff(m) > 1))
+        if m.size == 0:
+            return 0
+        return 1 + int(np.count_nonzero(np.diff(m) > 1))
 
 
 def session_to_kvh(

@@ -19,8 +19,9 @@ import numpy as np
 
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
+from recal.positions import Positions
 from recal.simulate import DESIGNS, NoiseSpec, TemperatureSpec, simulate_positions
-from recal.terms import catalogue_terms
+from recal.terms import Term, catalogue_terms
 from service.cli.common import atomic_write, load_coefficients, parse_effects
 
 #: Hold and slew lengths of a capture when not given: a sample-level session is held in memory,
@@ -212,7 +213,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_capture(args, truth, noise, temperature, hidden, sensors):
+def _write_capture(
+    args: argparse.Namespace,
+    truth: CoefficientSet,
+    noise: NoiseSpec,
+    temperature: TemperatureSpec,
+    hidden: list[Term],
+    sensors: tuple[str, ...],
+) -> Positions:
     """Simulate the session sample by sample, write the capture; return the true hold means."""
     from drivers import DecoderConfig
     from recal.session import session_positions, simulate_session
