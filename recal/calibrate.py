@@ -316,6 +316,8 @@ def calibrate(
         if report.verdict == "insufficient":
             raise RecalInputError(f"unusable design: {report.message}")
     report = analyze(problem, theta, typical)
+    if report.verdict == "insufficient":  # the design looked fine at the prior but not here
+        raise RecalInputError(f"unusable design at the solution: {report.message}")
     T = typical[:, None] * report.basis
     cov, chi2_red = covariance(problem, theta, T)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
@@ -328,7 +330,12 @@ def calibrate(
         )
     if not problem.noise_known:
         notes.append("no *_std columns: noise estimated from the fit residuals")
-    if problem.noise_known and chi2_red > 4.0:
+    if problem.noise_known and chi2_red > 1e3:
+        notes.append(
+            f"chi2_red = {chi2_red:.3g}: the invariants are far off; check --latitude, the "
+            "sensor's output units and that the windows are really static"
+        )
+    elif problem.noise_known and chi2_red > 4.0:
         notes.append(
             f"chi2_red = {chi2_red:.1f}: residuals exceed the window noise; an effect may be "
             "missing from the model (try `recal diagnose`)"
