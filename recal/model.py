@@ -21,22 +21,25 @@ NONLINEAR_STEPS = 3
 
 
 def inv3(A: np.ndarray) -> np.ndarray:
-    """Inverse of a batch of 3x3 matrices (P, 3, 3) by the adjugate; faster than np.linalg.inv here."""
-    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
-    d, e, f = A[:, 1, 0], A[:, 1, 1], A[:, 1, 2]
-    g, h, i = A[:, 2, 0], A[:, 2, 1], A[:, 2, 2]
-    co = np.empty_like(A)
-    co[:, 0, 0] = e * i - f * h
-    co[:, 0, 1] = c * h - b * i
-    co[:, 0, 2] = b * f - c * e
-    co[:, 1, 0] = f * g - d * i
-    co[:, 1, 1] = a * i - c * g
-    co[:, 1, 2] = c * d - a * f
-    co[:, 2, 0] = d * h - e * g
-    co[:, 2, 1] = b * g - a * h
-    co[:, 2, 2] = a * e - b * d
-    det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
-    return co / det[:, None, None]
+    """Inverse of a batch of 3x3 matrices (P, 3, 3) by the adjugate.
+
+    Works on a component-major copy (9, P) so every operation runs over contiguous memory;
+    several times faster than np.linalg.inv for this shape. Returns a (P, 3, 3) view.
+    """
+    T = A.transpose(1, 2, 0).reshape(9, -1)
+    a, b, c, d, e, f, g, h, i = T
+    co = np.empty_like(T)
+    co[0] = e * i - f * h
+    co[1] = c * h - b * i
+    co[2] = b * f - c * e
+    co[3] = f * g - d * i
+    co[4] = a * i - c * g
+    co[5] = c * d - a * f
+    co[6] = d * h - e * g
+    co[7] = b * g - a * h
+    co[8] = a * e - b * d
+    co /= a * co[0] + b * co[3] + c * co[6]
+    return co.reshape(3, 3, -1).transpose(2, 0, 1)
 
 
 def apply3(A: np.ndarray, v: np.ndarray) -> np.ndarray:
