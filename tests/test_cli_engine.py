@@ -136,3 +136,38 @@ def test_subprocess_exit_code_and_no_traceback(tmp_path):
     assert "Traceback" not in proc.stderr
     assert proc.stdout == ""
     assert "missing column(s) accel_z" in proc.stderr
+
+
+PLUGIN = '''
+from dataclasses import dataclass
+from recal.terms import Term
+
+
+@dataclass(frozen=True)
+class CrossBias(Term):
+    """A user's own effect: z bias proportional to the x input."""
+
+    def nonlinear(self, p, x, ctx):
+        out = 0 * x
+        out[..., 2] = p[:, None, 0] * x[..., 0]
+        return out
+
+
+TERMS = [CrossBias("gyro.cross_bias", "gyro", ("c",), "1", (1e-4,), (0.0,), "z bias from x rate")]
+'''
+
+
+def test_plugin_term_is_fitted_without_touching_the_solvers(positions_csv, tmp_path, capsys):
+    plugin = tmp_path / "my_effect.py"
+    plugin.write_text(PLUGIN)
+    args = ["calibrate", str(positions_csv), "--latitude", "52", "--sensor", "gyro", "--json"]
+    assert main([*args, "--plugin", str(plugin), "--effects", "+gyro.cross_bias"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "gyro.cross_bias" in doc["coefficients"]["effects"]
+    assert doc["status"]["effects"]["gyro.cross_bias"]["c"] in ("estimated", "held")
+    broken = tmp_path / "broken.py"
+    broken.write_text("raise RuntimeError('oops')\n")
+    assert main([*args, "--plugin", str(broken)]) == 2
+    assert "failed to load: RuntimeError: oops" in capsys.readouterr().err
+    assert main([*args, "--effects", "+gyro.nonsense"]) == 2
+    assert "unknown effect 'gyro.nonsense'" in capsys.readouterr().err
