@@ -134,12 +134,25 @@ def test_kvh_capture_gives_its_windows(tmp_path, capsys):
     np.testing.assert_array_equal(table.columns["frames_lost"], [0, 1])
 
 
-def test_kvh_needs_one_capture(tmp_path, capsys):
-    rc, err = run_positions(
-        capsys, tmp_path / "a.bin", tmp_path / "b.bin", "--format", "kvh-a",
-        "--init-still", "10", "-o", tmp_path / "p.csv",
-    )  # fmt: skip
-    assert rc == 2 and "one capture file" in err
+def test_kvh_capture_in_parts_equals_the_whole(tmp_path, capsys):
+    data, _ = kvh_capture()
+    whole, part1, part2 = tmp_path / "whole.bin", tmp_path / "p1.bin", tmp_path / "p2.bin"
+    whole.write_bytes(data)
+    cut = len(data) // 2 + 17  # mid-frame: the frame straddling the join must survive
+    part1.write_bytes(data[:cut])
+    part2.write_bytes(data[cut:])
+    outs = []
+    for inputs in ((whole,), (part1, part2)):
+        out = tmp_path / f"pos{len(inputs)}.csv"
+        rc, err = run_positions(capsys, *inputs, "--format", "kvh-a", "--init-still", "10",
+                                "-o", out)  # fmt: skip
+        assert rc == 0, err
+        outs.append(out.read_text())
+    assert outs[0] == outs[1]
+    missing = tmp_path / "missing.bin"
+    rc, err = run_positions(capsys, part1, missing, "--format", "kvh-a", "--init-still", "10",
+                            "-o", tmp_path / "x.csv")  # fmt: skip
+    assert rc == 2 and "does not exist" in err
 
 
 # ---- bad input: exit 2, one line, nothing written ------------------------------------------

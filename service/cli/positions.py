@@ -37,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "inputs",
         nargs="+",
         metavar="INPUT",
-        help="a KVH capture file; for xsens-text the acc file and the gyro file (told apart by "
+        help="KVH: one capture file, or the consecutive parts of one capture in order (joined "
+        "as one byte stream); xsens-text: the acc file and the gyro file (told apart by "
         "'acc'/'gyro' in their names, else in that order)",
     )
     p.add_argument("--format", required=True, choices=FORMATS, help="input format")
@@ -49,6 +50,22 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "rates); xsens-text: overrides the rate derived from the time column",
     )
     p.add_argument("-o", "--output", required=True, metavar="POSITIONS.csv")
+    k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
+    k.add_argument(
+        "--gyro-output",
+        choices=("delta", "rate"),
+        default="delta",
+        help="ROTFMT: delta angle per sample (default) or rate",
+    )
+    k.add_argument(
+        "--gyro-units", choices=("rad", "deg"), default="rad", help="ROTUNITS (default rad)"
+    )
+    k.add_argument(
+        "--temp-units",
+        choices=("degC", "centi"),
+        default="degC",
+        help="whole degC (default) or hundredths (C_100)",
+    )
     d = p.add_argument_group("detector")
     defaults = DetectorConfig(accel_threshold=0.0, gyro_threshold=0.0)
     d.add_argument(
@@ -141,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     if args.format == "xsens-text":
         frames, notes = _read_xsens(args.inputs)
     else:
-        frames, notes = _read_kvh(args.inputs, args.format, args.rate)
+        frames, notes = _read_kvh(args.inputs, args.format, args.rate, args)
     detector = StaticDetector(config)
     windows = _detect(detector, frames)
     report = detector.report
@@ -230,23 +247,30 @@ def _order_pair(inputs: list[str]) -> tuple[str, str]:
 
 
 def _read_kvh(
-    inputs: list[str], fmt: str, rate: float | None
+    inputs: list[str], fmt: str, rate: float | None, args: argparse.Namespace
 ) -> tuple[dict[str, np.ndarray | None], list[str]]:
     # Imported here: the Xsens path and --help need none of the KVH machinery.
     from drivers import DecoderConfig, decode_bulk, require_frames
 
-    if len(inputs) != 1:
-        raise RecalInputError(f"{fmt} takes one capture file; got {len(inputs)}")
-    path = Path(inputs[0])
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise RecalInputError(f"input file {path} does not exist") from None
-    except IsADirectoryError:
-        raise RecalInputError(f"input {path} is a directory, not a capture file") from None
-    except OSError as exc:
-        raise RecalInputError(f"cannot read {path}: {exc.strerror or exc}") from None
-    config = DecoderConfig() if rate is None else DecoderConfig(rate_hz=rate)
+    parts = []
+    for name in inputs:
+        path = Path(name)
+        try:
+            parts.append(path.read_bytes())
+        except FileNotFoundError:
+            raise RecalInputError(f"input file {path} does not exist") from None
+        except IsADirectoryError:
+            raise RecalInputError(f"input {path} is a directory, not a capture file") from None
+        except OSError as exc:
+            raise RecalInputError(f"cannot read {path}: {exc.strerror or exc}") from None
+    data = b"".join(parts)  # consecutive parts of one stream: frames may straddle the joins
+    path = Path(inputs[0]) if len(inputs) == 1 else Path(f"{inputs[0]} (+{len(inputs) - 1} parts)")
+    config = DecoderConfig(
+        gyro_output=args.gyro_output,
+        gyro_units=args.gyro_units,
+        temperature_units=args.temp_units,
+        **({} if rate is None else {"rate_hz": rate}),
+    )
     batch, counters = decode_bulk(data, fmt, config)
     require_frames(counters, fmt, source=str(path))
     frames = {
