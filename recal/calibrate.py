@@ -66,6 +66,7 @@ class CalibrationOptions:
     polish: bool = False
     swarm_config: SwarmConfig | None = None
     cycles: int = 3
+    indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
     t0_c: float = 25.0
 
 
@@ -294,6 +295,9 @@ def calibrate(
             cfg = opt.swarm_config
             if opt.paper and cfg is None and opt.method == "nafsa":
                 cfg = solver_for("nafsa")[1](cf_mode="literal")
+            threshold = opt.indicator_threshold
+            if threshold is None:
+                threshold = 1e-8 if opt.paper else 0.0
             mcs = run_mcs(
                 problem,
                 theta0,
@@ -304,6 +308,7 @@ def calibrate(
                 cfg,
                 opt.cycles,
                 progress=progress if attempt == 0 else None,
+                indicator_threshold=threshold,
             )
             theta, evaluations = mcs.mean, evaluations + mcs.evaluations
             if opt.polish:

@@ -71,6 +71,7 @@ def run_mcs(
     config: SwarmConfig | None = None,
     cycles: int = 3,
     stall_tol: float = 1e-3,
+    indicator_threshold: float = 0.0,
     batch: int = 100,
     progress: Callable[[int], None] | None = None,
 ) -> MCSResult:
@@ -78,7 +79,9 @@ def run_mcs(
 
     ``phases`` may be a function of the runs' current parameters (R, D), called at the start of
     every cycle, so the search directions and Visual follow the runs (the whitened phase).
-    Runs are processed ``batch`` at a time; larger batches mean fewer, larger objective calls.
+    Cycles end when every run's eq. (14) indicator is below ``indicator_threshold`` (all
+    invariants), when no run improved the objective by ``stall_tol`` (relative), or after
+    ``cycles``. Runs are processed ``batch`` at a time; larger batches mean fewer, larger objective calls.
     Each batch has its own generator spawned from ``seed``, so the result depends only on seed,
     runs and batch. ``progress`` receives the number of runs completed (fractions while a batch
     goes through its phases).
@@ -111,7 +114,11 @@ def run_mcs(
                     reported += step
             now = problem.objective(base)
             used_cycles = max(used_cycles, cycle + 1)
-            # seed: repeat the phases until the indicator stops improving
+            # seed 000 section 3.3.2: repeat the phases until every run's eq. (14) indicator is
+            # below the threshold (the paper uses 1e-8) or the indicator stops improving
+            indicators = np.max(np.stack(list(problem.indicator(base).values())), axis=0)
+            if np.all(indicators < indicator_threshold):
+                break
             if np.all(now >= prev * (1.0 - stall_tol)):
                 break
             prev = now
