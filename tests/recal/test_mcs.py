@@ -82,3 +82,11 @@ def test_polish_lands_on_lm(gyro_positions, lm_result):
     sd = np.sqrt(np.diag(lm_result.covariance))
     est = lm_result.observability.estimated
     assert np.all(np.abs(res.theta - lm_result.theta)[est] < 0.05 * sd[est])
+
+
+def test_indicator_threshold_ends_the_cycles(gyro_positions):
+    base = dict(sensor="gyro", latitude_deg=30.0, method="nafsa", mc_runs=3, seed=1, cycles=4)
+    loose = calibrate(gyro_positions, CalibrationOptions(**base, indicator_threshold=1e9))
+    assert loose.mcs.cycles == 1
+    strict = calibrate(gyro_positions, CalibrationOptions(**base, indicator_threshold=0.0))
+    assert strict.mcs.cycles >= 2
