@@ -25,10 +25,9 @@ import numpy as np
 
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.model import Model
 from recal.positions import Positions
 from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
-from recal.simulate import NoiseSpec, TemperatureSpec, design_orientations
+from recal.simulate import NoiseSpec, TemperatureSpec, design_orientations, truth_model
 from recal.terms import Term
 
 #: Longest session simulated at once, in samples. Each sample holds about 20 float64 values
@@ -178,7 +177,7 @@ def simulate_session(
     noise_at_rate = replace(noise, rate_hz=rate_hz)
     out = {}
     for sensor, x in (("gyro", gyro_in), ("accel", accel_in)):
-        theta_vec, model = _truth_vector(truth, sensor, hidden)
+        theta_vec, model = truth_model(truth, sensor, hidden)
         noisy = x + rng.normal(size=(N, 3)) * noise_at_rate.per_sample_sigma(sensor)
         out[sensor] = model.forward(theta_vec, noisy, ctx)[0]
     return Session(
@@ -266,18 +265,3 @@ def _rotate_into_body(v: np.ndarray, axis: np.ndarray, theta: np.ndarray) -> np.
     the body turned by theta (N,) about ``axis``: Rodrigues with -theta, shape (N, 3)."""
     c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
     return v * c - np.cross(axis, v) * s + np.outer(1.0 - c[:, 0], axis * float(axis @ v))
-
-
-def _truth_vector(
-    truth: CoefficientSet, sensor: str, hidden: Sequence[Term]
-) -> tuple[np.ndarray, Model]:
-    extra = [t for t in hidden if t.sensor == sensor]
-    model = Model.seed(sensor, extra)
-    vals = truth.copy()
-    for t in extra:
-        if vals.get(t.name) is None:
-            vals.values[t.name] = np.asarray(t.typical, float)
-    missing = [t.name for t in model.terms if vals.get(t.name) is None]
-    if missing:
-        raise RecalInputError(f"truth lacks {', '.join(missing)}")
-    return np.concatenate([vals.values[t.name] for t in model.terms])[None], model

@@ -120,6 +120,23 @@ class TemperatureSpec:
     slope_c_per_h: float = 2.0
 
 
+def truth_model(
+    truth: CoefficientSet, sensor: str, hidden: Sequence[Term] = ()
+) -> tuple[np.ndarray, Model]:
+    """The truth parameter vector (1, D) and the model that simulates ``sensor``: the seed model
+    plus the ``hidden`` terms, which take their typical magnitude when ``truth`` lacks them."""
+    extra = [t for t in hidden if t.sensor == sensor]
+    model = Model.seed(sensor, extra)
+    vals = truth.copy()
+    for t in extra:
+        if vals.get(t.name) is None:
+            vals.values[t.name] = np.asarray(t.typical, float)
+    missing = [t.name for t in model.terms if vals.get(t.name) is None]
+    if missing:
+        raise RecalInputError(f"truth lacks {', '.join(missing)}")
+    return np.concatenate([vals.values[t.name] for t in model.terms])[None], model
+
+
 def simulate_positions(
     truth: CoefficientSet,
     design: str = "24",
@@ -164,20 +181,11 @@ def simulate_positions(
         "specific_force_g": true_in["accel"],
     }
     for sensor in sensors:
-        extra = [t for t in hidden if t.sensor == sensor]
-        model = Model.seed(sensor, extra)
-        vals = truth.copy()
-        for t in extra:
-            if vals.get(t.name) is None:
-                vals.values[t.name] = np.asarray(t.typical, float)
-        missing = [t.name for t in model.terms if vals.get(t.name) is None]
-        if missing:
-            raise RecalInputError(f"truth lacks {', '.join(missing)}")
-        theta = np.concatenate([vals.values[t.name] for t in model.terms])[None]
+        theta, model = truth_model(truth, sensor, hidden)
         sigma_in = noise.per_sample_sigma(sensor)
         n_in = true_in[sensor] + rng.normal(size=(M, 3)) * sigma_in / np.sqrt(samples)[:, None]
         out = model.forward(theta, n_in, ctx)[0]
-        gain = np.abs(vals.values[f"{sensor}.scale"])
+        gain = np.abs(truth.values[f"{sensor}.scale"])
         for i, a in enumerate("xyz"):
             cols[f"{sensor}_{a}"] = out[:, i]
             cols[f"{sensor}_{a}_std"] = np.full(M, sigma_in * gain[i])
