@@ -16,16 +16,25 @@ from recal.positions import Positions
 from recal.terms import Term
 
 
-def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
+def read_bytes(path: str | os.PathLike[str], what: str = "file") -> bytes:
+    """A file's bytes; a missing, unreadable or directory path is a one-line input error."""
     p = Path(path)
     try:
-        return p.read_text(encoding="utf-8")
+        return p.read_bytes()
     except FileNotFoundError:
         raise RecalInputError(f"{what} {p} does not exist") from None
     except IsADirectoryError:
         raise RecalInputError(f"{what} {p} is a directory") from None
-    except (PermissionError, UnicodeDecodeError, OSError) as exc:
-        raise RecalInputError(f"cannot read {what} {p}: {exc.__class__.__name__}") from None
+    except OSError as exc:
+        raise RecalInputError(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+
+
+def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
+    data = read_bytes(path, what)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RecalInputError(f"{what} {path} is not UTF-8 text") from None
 
 
 def atomic_write(path: str | os.PathLike[str], text: str) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 from recal.errors import RecalInputError
 from recal.positions import Positions
 from recal.static import DetectorConfig, StaticDetector, Window, windows_to_columns
-from service.cli.common import atomic_write, progress_bar
+from service.cli.common import atomic_write, progress_bar, read_bytes
 
 FORMATS = ("kvh-a", "kvh-b", "kvh-c", "xsens-text")
 _CHUNK = 1 << 16  # frames per detector feed: the unit of the progress bar
@@ -252,17 +252,7 @@ def _read_kvh(
     # Imported here: the Xsens path and --help need none of the KVH machinery.
     from drivers import DecoderConfig, decode_bulk, require_frames
 
-    parts = []
-    for name in inputs:
-        path = Path(name)
-        try:
-            parts.append(path.read_bytes())
-        except FileNotFoundError:
-            raise RecalInputError(f"input file {path} does not exist") from None
-        except IsADirectoryError:
-            raise RecalInputError(f"input {path} is a directory, not a capture file") from None
-        except OSError as exc:
-            raise RecalInputError(f"cannot read {path}: {exc.strerror or exc}") from None
+    parts = [read_bytes(name, "input file") for name in inputs]
     data = b"".join(parts)  # consecutive parts of one stream: frames may straddle the joins
     path = Path(inputs[0]) if len(inputs) == 1 else Path(f"{inputs[0]} (+{len(inputs) - 1} parts)")
     config = DecoderConfig(
