@@ -10,7 +10,10 @@ on this data set, not the measurement uncertainty.
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,6 +64,87 @@ def _phase_objective(problem: Problem, base: np.ndarray, transform: np.ndarray):
     return f
 
 
+@dataclass(frozen=True)
+class _Job:
+    """Everything one batch of runs needs; inherited by forked workers, never pickled."""
+
+    problem: Problem
+    theta0: np.ndarray
+    phases: Sequence[Phase] | Callable[[np.ndarray], Sequence[Phase]]
+    solver: Callable
+    config: SwarmConfig
+    cycles: int
+    stall_tol: float
+    indicator_threshold: float
+    sizes: tuple[int, ...]  # runs per batch
+    seeds: tuple[np.random.SeedSequence, ...]
+
+
+@dataclass(frozen=True)
+class _BatchOutcome:
+    final: np.ndarray  # (R, D)
+    objective: np.ndarray  # (R,)
+    history: np.ndarray  # (R, iterations + 1)
+    evaluations: int
+    cycles: int
+
+
+def _run_batch(job: _Job, b: int, progress: Callable[[float], None] | None = None) -> _BatchOutcome:
+    problem, R = job.problem, job.sizes[b]
+    rng = np.random.default_rng(job.seeds[b])
+    base = np.repeat(job.theta0[None], R, axis=0)
+    hist = [problem.objective(base)[:, None]]
+    prev = hist[0][:, 0]
+    evaluations = used_cycles = 0
+    for cycle in range(job.cycles):
+        current = job.phases(base) if callable(job.phases) else job.phases
+        for ph in current:
+            f = _phase_objective(problem, base, ph.transform)
+            center = np.zeros((R, ph.transform.shape[1]))
+            res = job.solver(f, center, ph.visual, rng, job.config, with_runs=True)
+            evaluations += res.evaluations
+            better = res.best_f < problem.objective(base)
+            base = np.where(better[:, None], base + res.best_x @ ph.transform.T, base)
+            hist.append(np.minimum.accumulate(res.history[:, 1:], axis=1))
+            if progress:
+                progress(R / (len(current) * job.cycles))
+        now = problem.objective(base)
+        used_cycles = cycle + 1
+        # seed 000 section 3.3.2: repeat the phases until every run's eq. (14) indicator is
+        # below the threshold (the paper uses 1e-8) or the indicator stops improving
+        indicators = np.max(np.stack(list(problem.indicator(base).values())), axis=0)
+        if np.all(indicators < job.indicator_threshold):
+            break
+        if np.all(now >= prev * (1.0 - job.stall_tol)):
+            break
+        prev = now
+    history = np.minimum.accumulate(np.concatenate(hist, axis=1), axis=1)
+    return _BatchOutcome(base, problem.objective(base), history, evaluations, used_cycles)
+
+
+_FORK_JOB: _Job | None = None  # set in the parent just before forking the workers
+
+
+def _init_worker() -> None:
+    # A BLAS thread pool inherited through fork oversubscribes the cores (and can spin); the
+    # matrices here are tiny, so each worker uses one BLAS thread.
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+
+
+def _run_forked(b: int) -> _BatchOutcome:
+    assert _FORK_JOB is not None
+    return _run_batch(_FORK_JOB, b)
+
+
+def _default_workers(n_batches: int) -> int:
+    if "fork" not in mp.get_all_start_methods():
+        return 1
+    return max(1, min(n_batches, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                      else (os.cpu_count() or 1)))  # fmt: skip
+
+
 def run_mcs(
     problem: Problem,
     theta0: np.ndarray,
@@ -72,8 +156,9 @@ def run_mcs(
     cycles: int = 3,
     stall_tol: float = 1e-3,
     indicator_threshold: float = 0.0,
-    batch: int = 100,
-    progress: Callable[[int], None] | None = None,
+    batch: int = 50,
+    workers: int | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> MCSResult:
     """Run ``runs`` independent phased optimisations from ``theta0`` and summarise them.
 
@@ -81,64 +166,57 @@ def run_mcs(
     every cycle, so the search directions and Visual follow the runs (the whitened phase).
     Cycles end when every run's eq. (14) indicator is below ``indicator_threshold`` (all
     invariants), when no run improved the objective by ``stall_tol`` (relative), or after
-    ``cycles``. Runs are processed ``batch`` at a time; larger batches mean fewer, larger objective calls.
+    ``cycles``.
+
+    Runs are processed ``batch`` at a time (larger batches: fewer, larger objective calls).
     Each batch has its own generator spawned from ``seed``, so the result depends only on seed,
-    runs and batch. ``progress`` receives the number of runs completed (fractions while a batch
-    goes through its phases).
+    runs and batch -- not on ``workers``, the number of forked processes that run batches side by
+    side (default: one per available core, at most one per batch; 1 = in this process).
+    ``progress`` receives the number of runs completed (fractions while a batch goes through its
+    phases when running in this process).
     """
     tune_allocator()
     solver, config_cls = solver_for(method)
-    config = config or config_cls()
-    seeds = np.random.SeedSequence(seed).spawn((runs + batch - 1) // batch)
-    finals, objectives, histories, evaluations, used_cycles = [], [], [], 0, 0
-    for b, ss in enumerate(seeds):
-        rng = np.random.default_rng(ss)
-        R = min(batch, runs - b * batch)
-        base = np.repeat(theta0[None], R, axis=0)
-        hist = [problem.objective(base)[:, None]]
-        prev = hist[0][:, 0]
-        reported = 0.0
-        for cycle in range(cycles):
-            current = phases(base) if callable(phases) else phases
-            for ph in current:
-                f = _phase_objective(problem, base, ph.transform)
-                center = np.zeros((R, ph.transform.shape[1]))
-                res = solver(f, center, ph.visual, rng, config, with_runs=True)
-                evaluations += res.evaluations
-                better = res.best_f < problem.objective(base)
-                base = np.where(better[:, None], base + res.best_x @ ph.transform.T, base)
-                hist.append(np.minimum.accumulate(res.history[:, 1:], axis=1))
-                if progress:
-                    step = R / (len(current) * cycles)
-                    progress(step)
-                    reported += step
-            now = problem.objective(base)
-            used_cycles = max(used_cycles, cycle + 1)
-            # seed 000 section 3.3.2: repeat the phases until every run's eq. (14) indicator is
-            # below the threshold (the paper uses 1e-8) or the indicator stops improving
-            indicators = np.max(np.stack(list(problem.indicator(base).values())), axis=0)
-            if np.all(indicators < indicator_threshold):
-                break
-            if np.all(now >= prev * (1.0 - stall_tol)):
-                break
-            prev = now
-        finals.append(base)
-        objectives.append(problem.objective(base))
-        histories.append(np.minimum.accumulate(np.concatenate(hist, axis=1), axis=1))
-        if progress:
-            progress(R - reported)
-    width = max(h.shape[1] for h in histories)
+    n_batches = (runs + batch - 1) // batch
+    job = _Job(
+        problem, theta0, phases, solver, config or config_cls(), cycles, stall_tol,
+        indicator_threshold,
+        tuple(min(batch, runs - b * batch) for b in range(n_batches)),
+        tuple(np.random.SeedSequence(seed).spawn(n_batches)),
+    )  # fmt: skip
+    workers = _default_workers(n_batches) if workers is None else max(1, min(workers, n_batches))
+    outcomes: list[_BatchOutcome] = []
+    if workers == 1:
+        for b in range(n_batches):
+            outcomes.append(_run_batch(job, b, progress))
+    else:
+        global _FORK_JOB
+        _FORK_JOB = job
+        try:
+            ctx = mp.get_context("fork")
+            with ProcessPoolExecutor(
+                max_workers=workers, mp_context=ctx, initializer=_init_worker
+            ) as pool:
+                futures = [pool.submit(_run_forked, b) for b in range(n_batches)]
+                for b, fut in enumerate(futures):
+                    outcomes.append(fut.result())
+                    if progress:
+                        progress(job.sizes[b])
+        finally:
+            _FORK_JOB = None
+    width = max(o.history.shape[1] for o in outcomes)
     history = np.concatenate(
-        [np.pad(h, ((0, 0), (0, width - h.shape[1])), mode="edge") for h in histories]
-    )
-    all_runs = np.concatenate(finals)
+        [np.pad(o.history, ((0, 0), (0, width - o.history.shape[1])), mode="edge")
+         for o in outcomes]
+    )  # fmt: skip
+    all_runs = np.concatenate([o.final for o in outcomes])
     std = all_runs.std(axis=0, ddof=1) if runs > 1 else np.zeros(all_runs.shape[1])
     return MCSResult(
         all_runs,
         all_runs.mean(axis=0),
         std,
-        np.concatenate(objectives),
+        np.concatenate([o.objective for o in outcomes]),
         history,
-        evaluations,
-        used_cycles,
+        sum(o.evaluations for o in outcomes),
+        max(o.cycles for o in outcomes),
     )

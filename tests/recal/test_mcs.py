@@ -90,3 +90,20 @@ def test_indicator_threshold_ends_the_cycles(gyro_positions):
     assert loose.mcs.cycles == 1
     strict = calibrate(gyro_positions, CalibrationOptions(**base, indicator_threshold=0.0))
     assert strict.mcs.cycles >= 2
+
+
+def test_forked_workers_give_the_same_runs_as_one_process(gyro_positions):
+    from recal.mcs import run_mcs
+    from recal.model import Model, ParameterLayout
+    from recal.phases import paper_phases
+    from recal.problem import Problem
+
+    layout = ParameterLayout((Model.seed("gyro"),))
+    theta0 = CoefficientSet.seed_truth().to_vector(layout)
+    problem = Problem.build(gyro_positions, layout.models, 30.0, 0.0, theta0)
+    phases = paper_phases(layout, layout.typical(theta0))
+    kw = dict(runs=6, seed=4, batch=3, cycles=1)
+    one = run_mcs(problem, theta0, phases, "nafsa", workers=1, **kw)
+    two = run_mcs(problem, theta0, phases, "nafsa", workers=2, **kw)
+    np.testing.assert_array_equal(one.runs, two.runs)
+    assert one.evaluations == two.evaluations
