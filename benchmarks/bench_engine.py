@@ -129,7 +129,8 @@ def accuracy(datasets: int, mc: int, lm_datasets: int) -> dict:
                 evals.setdefault(name, []).append(res.evaluations)
                 z.setdefault(name, []).append(C @ (res.theta - theta_true) / bound)
                 anti.setdefault(name, []).append(A @ (res.theta - theta_true))
-            print(f"  design {design}: data set {k + 1}/{n_total}", file=sys.stderr, end="\r")
+            if sys.stderr.isatty():
+                print(f"  design {design}: {k + 1}/{n_total}", file=sys.stderr, end="\r")
         print(file=sys.stderr)
         groups_arr = np.array(groups)
         rows = {}

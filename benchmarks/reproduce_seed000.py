@@ -64,7 +64,7 @@ def main() -> None:
     bound = crlb(problem, theta_preset)
     print(
         "| parameter | preset (Table 2) | MCS-NAFSA mean | rel. error | MC std | paper's rel. "
-        "error | paper's std | GN 1-sigma | CRLB 1-sigma | status |"
+        "error (as printed) | paper's std | GN 1-sigma | CRLB 1-sigma | status |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for i, n in enumerate(names):
