@@ -167,10 +167,10 @@ def simulate_session(
         accel_in[slew] = _rotate_into_body(f_b, axis, theta)
 
     time_s = np.arange(N) / rate_hz
-    temp_c = temperature.start_c + temperature.slope_c_per_h * time_s / 3600.0
+    temp_c = temperature.at(time_s / 3600.0)
     ctx = {
         "temperature_c": temp_c,
-        "temperature_rate_c_per_h": np.full(N, temperature.slope_c_per_h),
+        "temperature_rate_c_per_h": temperature.rate(time_s / 3600.0),
         "time_h": time_s / 3600.0,
         "specific_force_g": accel_in,
     }

@@ -114,10 +114,27 @@ class NoiseSpec:
 
 @dataclass(frozen=True)
 class TemperatureSpec:
-    """Linear temperature profile over the session: T(t) = start_c + slope_c_per_h * t."""
+    """Temperature over the session (t in h): a ramp plus an optional daily-cycle-like swing,
+
+    T(t) = start_c + slope_c_per_h * t + swing_c * sin(2 pi t / period_h).
+
+    A swing makes temperature effects separable from a drift in time, which a ramp is not.
+    """
 
     start_c: float = 20.0
     slope_c_per_h: float = 2.0
+    swing_c: float = 0.0
+    period_h: float = 1.0
+
+    def at(self, t_h: np.ndarray) -> np.ndarray:
+        """Temperature, degC."""
+        w = 2 * np.pi / self.period_h
+        return self.start_c + self.slope_c_per_h * t_h + self.swing_c * np.sin(w * t_h)
+
+    def rate(self, t_h: np.ndarray) -> np.ndarray:
+        """dT/dt, degC/h."""
+        w = 2 * np.pi / self.period_h
+        return self.slope_c_per_h + self.swing_c * w * np.cos(w * t_h)
 
 
 def truth_model(
@@ -172,11 +189,12 @@ def simulate_positions(
     end = start + noise.window_s
     samples = np.full(M, round(noise.window_s * noise.rate_hz), dtype=float)
     t_mid_h = 0.5 * (start + end) / 3600.0
-    temp = temperature.start_c + temperature.slope_c_per_h * t_mid_h
+    temp = temperature.at(t_mid_h)
+    temp_rate = temperature.rate(t_mid_h)
     cols: dict[str, np.ndarray] = {"start_s": start, "end_s": end, "samples": samples}
     ctx = {
         "temperature_c": temp,
-        "temperature_rate_c_per_h": np.full(M, temperature.slope_c_per_h),
+        "temperature_rate_c_per_h": temp_rate,
         "time_h": t_mid_h,
         "specific_force_g": true_in["accel"],
     }
@@ -190,5 +208,5 @@ def simulate_positions(
             cols[f"{sensor}_{a}"] = out[:, i]
             cols[f"{sensor}_{a}_std"] = np.full(M, sigma_in * gain[i])
     cols["temperature_c"] = temp
-    cols["temperature_rate_c_per_h"] = np.full(M, temperature.slope_c_per_h)
+    cols["temperature_rate_c_per_h"] = temp_rate
     return Positions.from_columns(cols, source=f"simulated {design} design")

@@ -101,6 +101,16 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=TemperatureSpec.slope_c_per_h,
         help="temperature ramp, degC/h (default %(default)s)",
     )
+    p.add_argument(
+        "--temp-swing",
+        type=float,
+        default=0.0,
+        help="amplitude of a sinusoidal temperature swing, degC (default 0): separates "
+        "temperature effects from drift in time",
+    )
+    p.add_argument(
+        "--temp-period", type=float, default=1.0, help="period of the swing, h (default 1)"
+    )
     p.add_argument("--truth-out", metavar="FILE", help="also write the truth used, as JSON")
     p.add_argument(
         "-o",
@@ -180,7 +190,9 @@ def run(args: argparse.Namespace) -> int:
         truth.values.setdefault(name, v)
     sensors = ("gyro", "accel") if args.sensor == "both" else (args.sensor,)
     noise = NoiseSpec(args.arw, args.vrw, window, slew, rate_hz=args.rate)
-    temperature = TemperatureSpec(args.temp_start, args.temp_slope)
+    temperature = TemperatureSpec(
+        args.temp_start, args.temp_slope, args.temp_swing, args.temp_period
+    )
     if capture:
         positions = _write_capture(args, truth, noise, temperature, hidden, sensors)
     else:

@@ -1,0 +1,77 @@
+"""``recal diagnose``: where the model fails and which physical effect is missing."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from recal.diagnose import Diagnosis, diagnose
+from recal.report import diagnosis_html
+from service.cli.calibrate import add_calibration_arguments, options_from_args
+from service.cli.common import atomic_write, load_positions, parse_effects, print_json
+
+
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "diagnose",
+        help="compare the model with the measurements and rank missing physical effects",
+        description="Fit the model, compare each invariant's residual with its noise floor, then "
+        "try every catalogue (and plugin) effect on top and rank them by delta BIC, F-test "
+        "p-value and the share of the excess residual they explain.",
+    )
+    add_calibration_arguments(p)
+    p.add_argument(
+        "--candidates",
+        metavar="NAME,...",
+        help="only try these effects (default: the whole catalogue for the triads)",
+    )
+    p.add_argument("--report", metavar="OUT.html", help="write an HTML report with plots")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    options = options_from_args(args)
+    positions = load_positions(args.positions)
+    candidates = parse_effects(args.candidates) if args.candidates else None
+    result = diagnose(positions, options, candidates)
+    if args.report:
+        atomic_write(args.report, diagnosis_html(result, f"recal diagnose {args.positions}"))
+    if args.json:
+        print_json(result.to_json_dict())
+    else:
+        sys.stdout.write(format_diagnosis(result))
+    return 0
+
+
+def format_diagnosis(d: Diagnosis) -> str:
+    doc = d.to_json_dict()
+    lines = [f"{'invariant':12s} {'RMS':>11s} {'noise floor':>12s} {'ratio':>7s}"]
+    for inv in doc["invariants"]:
+        floor = "unknown" if inv["noise_floor"] is None else f"{inv['noise_floor']:.4g}"
+        ratio = "" if inv["ratio"] is None else f"{inv['ratio']:.2f}"
+        lines.append(f"{inv['name']:12s} {inv['rms']:11.4g} {floor:>12s} {ratio:>7s}  "
+                     f"[{inv['unit']}]")  # fmt: skip
+    lines += ["", f"{'candidate effect':30s} {'dBIC':>10s} {'p':>9s} {'signif.':>8s} "
+              f"{'explained':>9s}"]  # fmt: skip
+    for c in doc["candidates"]:
+        if not c["identifiable"]:
+            lines.append(f"{c['effect']:30s} {'-':>10s} {'-':>9s} {'-':>8s} {'-':>9s}  "
+                         f"({c['reason']})")  # fmt: skip
+            continue
+        similar = f"  (same as {', '.join(c['similar_to'])})" if c["similar_to"] else ""
+        lines.append(
+            f"{c['effect']:30s} {c['delta_bic']:10.1f} {c['p_value']:9.2g} "
+            f"{'YES' if c['significant'] else 'no':>8s} {c['explained_fraction']:9.2f}{similar}"
+        )
+    lines.append("")
+    if d.suggested_effects:
+        eff = ",+".join(d.suggested_effects)
+        lines.append(f"suggested: recal calibrate ... --effects +{eff}   "
+                     f"(chi2_red {doc['chi2_red']:.3g} -> {doc['chi2_red_with_suggested']:.3g})")  # fmt: skip
+        for c in d.candidates:
+            if c.effect in d.suggested_effects:
+                lines.append(f"  {c.effect}: {c.explanation}")
+    else:
+        lines.append(f"no candidate effect is significant (chi2_red {doc['chi2_red']:.3g})")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,106 @@
+"""Model discrepancy: a hidden effect is found, named and removed; no effect, no alarm."""
+
+import json
+
+import numpy as np
+import pytest
+
+from recal.calibrate import CalibrationOptions
+from recal.coefficients import CoefficientSet
+from recal.diagnose import diagnose
+from recal.report import diagnosis_html
+from recal.simulate import TemperatureSpec, simulate_positions
+from recal.terms import catalogue_terms
+from service.cli.main import main
+
+CAT = catalogue_terms()
+SWING = TemperatureSpec(start_c=15.0, slope_c_per_h=4.0, swing_c=8.0, period_h=0.7)
+
+
+def _positions(hidden: list[str], seed: int, sensors=("gyro", "accel"), values=None):
+    truth = CoefficientSet.seed_truth()
+    for name, v in (values or {}).items():
+        truth.values[name] = np.asarray(v, float)
+    return simulate_positions(truth, "random", 36, 40.0, seed=seed, sensors=sensors,
+                              temperature=SWING, hidden=[CAT[h] for h in hidden])  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("effect", "values", "sensors"),
+    [
+        ("gyro.bias_temperature", [0.004, -0.003, 0.002], ("gyro",)),
+        ("accel.scale_asymmetry", [2e-4, -1.5e-4, 1e-4], ("accel",)),
+        ("gyro.bias_drift", [0.03, 0.0, -0.02], ("gyro", "accel")),
+    ],
+)
+def test_hidden_effect_is_ranked_first_and_removes_the_excess(effect, values, sensors):
+    pos = _positions([effect], seed=7, sensors=sensors, values={effect: values})
+    d = diagnose(pos, CalibrationOptions(latitude_deg=40.0))
+    top = d.candidates[0]
+    assert top.effect == effect, [(c.effect, c.delta_bic) for c in d.candidates[:3]]
+    assert top.significant and top.delta_bic < -10 and top.explained_fraction > 0.8
+    assert d.suggested_effects[0] == effect
+    assert d.chi2_red > 3 and d.final_chi2_red < 2
+    # the estimated effect matches the hidden truth within its own uncertainty
+    est = np.array(list(top.parameters.values()))
+    sd = np.array(list(top.uncertainty.values()))
+    assert np.all(np.abs(est - np.asarray(values)) < 4 * sd)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_no_hidden_effect_no_significant_candidate(seed):
+    d = diagnose(_positions([], seed), CalibrationOptions(latitude_deg=40.0))
+    assert not [c.effect for c in d.candidates if c.significant]
+    assert d.suggested_effects == []
+    for inv in d.invariants:
+        assert inv["ratio"] < 1.5
+
+
+def test_ramp_only_temperature_cannot_tell_temperature_from_drift():
+    truth = CoefficientSet.seed_truth()
+    truth.values["gyro.bias_temperature"] = np.array([0.004, -0.003, 0.002])
+    pos = simulate_positions(truth, "random", 36, 40.0, seed=5, sensors=("gyro",),
+                             temperature=TemperatureSpec(10.0, 30.0),
+                             hidden=[CAT["gyro.bias_temperature"]])  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=40.0))
+    top = {c.effect: c for c in d.candidates[:2]}
+    assert set(top) == {"gyro.bias_temperature", "gyro.bias_drift"}
+    assert "gyro.bias_drift" in top["gyro.bias_temperature"].similar_to
+
+
+def test_constant_temperature_effect_is_not_identifiable():
+    pos = _positions([], seed=1, sensors=("gyro",))
+    pos.columns["temperature_c"] = np.full(len(pos), 25.0)
+    d = diagnose(pos, CalibrationOptions(latitude_deg=40.0),
+                 candidates=["gyro.bias_temperature"])  # fmt: skip
+    (c,) = d.candidates
+    assert not c.identifiable and "cannot show" in c.reason
+
+
+def test_cli_json_contract_and_html_report(tmp_path, capsys):
+    pos = _positions(["gyro.bias_temperature"], seed=3, sensors=("gyro",),
+                     values={"gyro.bias_temperature": [0.004, -0.003, 0.002]})  # fmt: skip
+    csv = tmp_path / "pos.csv"
+    csv.write_text(pos.to_csv_text())
+    report = tmp_path / "report.html"
+    rc = main(["diagnose", str(csv), "--latitude", "40", "--json", "--report", str(report)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    doc = json.loads(out)
+    inv = doc["invariants"][0]
+    assert {"name", "rms", "noise_floor"} <= set(inv) and inv["name"] == "gyro_norm"
+    c = doc["candidates"][0]
+    assert {"effect", "delta_bic", "p_value", "significant", "explained_fraction"} <= set(c)
+    assert c["effect"] == "gyro.bias_temperature" and c["significant"]
+    page = report.read_text()
+    assert page.startswith("<!doctype html>") and "<svg" in page and "gyro.bias_temperature" in page
+    # the text report names the fix
+    assert main(["diagnose", str(csv), "--latitude", "40"]) == 0
+    assert "--effects +gyro.bias_temperature" in capsys.readouterr().out
+
+
+def test_html_report_is_self_contained():
+    d = diagnose(_positions([], seed=4, sensors=("accel",)), CalibrationOptions(latitude_deg=40.0))
+    page = diagnosis_html(d)
+    assert "No candidate effect is significant" in page
+    assert "http" not in page.replace("http://www.w3.org/2000/svg", "")  # no external assets
