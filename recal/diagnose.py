@@ -231,7 +231,9 @@ def _score(
     dk = fit.rank - current.rank
     if fit.verdict == "insufficient" or dk <= 0:
         cand.identifiable = False
-        cand.reason = "the positions cannot show this effect (no new observable direction)"
+        cand.reason = (
+            "these positions cannot show it: the data pin it down no better than its typical size"
+        )
         return cand
     cand.added_directions = dk
     cand.delta_bic = (fit.rss - current.rss) + dk * np.log(n)

@@ -74,7 +74,7 @@ def test_constant_temperature_effect_is_not_identifiable():
     d = diagnose(pos, CalibrationOptions(latitude_deg=40.0),
                  candidates=["gyro.bias_temperature"])  # fmt: skip
     (c,) = d.candidates
-    assert not c.identifiable and "cannot show" in c.reason
+    assert not c.identifiable and "cannot show it" in c.reason
 
 
 def test_cli_json_contract_and_html_report(tmp_path, capsys):
