@@ -1,0 +1,29 @@
+"""``recal serve --config FILE.toml``: the onboard daemon (reader, pipeline, HTTP API)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from service.config import load_settings
+
+
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "serve",
+        help="run the onboard service: read the IMU, find static windows, recalibrate, publish",
+        description="Run the daemon described by a TOML config (see service/config.py; every "
+        "setting can be overridden with RECAL_* environment variables, e.g. "
+        "RECAL_SITE__LATITUDE_DEG=57.7). Stops cleanly on SIGINT/SIGTERM.",
+    )
+    p.add_argument("--config", required=True, metavar="FILE.toml")
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from service.daemon import run_daemon
+
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(message)s")
+    return run_daemon(load_settings(args.config))
