@@ -482,3 +482,29 @@ def test_memory_is_bounded_by_the_open_window():
     (w,) = det.flush()
     assert w.samples > 239_000
     assert high < 1000 + 3 * 101 + 50  # one chunk, two moving windows and the trim
+
+
+# ---- zero-variance input ---------------------------------------------------------------------
+def noiseless_poses() -> tuple[Session, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    s = Session().still("init", 20).tilt("s1", 3, 90).still("p1", 10).tilt("s2", 3, 45)
+    s.still("p2", 10)
+    return s, s.build(noise=False)
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [DetectorConfig(init_still_s=15.0), DetectorConfig(accel_threshold=0.0, gyro_threshold=0.0)],
+    ids=["learned", "given"],
+)
+def test_noiseless_poses_pass_a_zero_threshold(cfg):
+    # Simulated data without noise: the learned thresholds are 0. A constant pose has variance 0
+    # whatever its offset from the reference frame; rounding in the moving sums must not make it
+    # "loud" (it did: only the pose of the reference frame was found).
+    s, (t, g, a) = noiseless_poses()
+    res = detect_static(t, g, a, config=cfg)
+    assert (res.report.accel_threshold, res.report.gyro_threshold) == (0.0, 0.0)
+    assert len(res.windows) == 3
+    for w, name in zip(res.windows, ("init", "p1", "p2"), strict=True):
+        assert inside(w, s.spans[name])
+    got, _ = chunked(cfg, random_sizes(t.shape[0], seed=4), t, g, a)
+    assert_same_windows(got, res.windows)
