@@ -181,17 +181,20 @@ class FrameReader:
                         self._stop.wait(delay)
                         delay = min(delay * 2, self.backoff_max)
                         continue
-                    delay = self.backoff_initial
                 port = self._port
                 try:
                     waiting = port.in_waiting
                     data = port.read(min(max(waiting, 1), self.read_size))
                 except (serial.SerialException, OSError) as exc:
                     self._drop_port(exc)
+                    # A port that opens but fails at once (a flapping device) backs off too:
+                    # the delay restarts only once data has come through.
                     self._stop.wait(delay)
+                    delay = min(delay * 2, self.backoff_max)
                     continue
                 if not data:
                     continue
+                delay = self.backoff_initial
                 now = time.monotonic()
                 with self._lock:
                     batch = self._decoder.feed(data, host_time=now)

@@ -145,3 +145,35 @@ def test_reader_retries_a_missing_device(tmp_path) -> None:
     h = reader.health()
     assert h.running and not h.connected and "cannot open" in h.last_error
     assert reader.stop(timeout=1.0)
+
+
+def test_reader_backs_off_when_the_port_opens_but_fails_at_once(monkeypatch) -> None:
+    # A flapping device (or a server that accepts and hangs up): the open succeeds, the first
+    # read fails. The back-off must still double, not restart at backoff_initial on every open.
+    import serial
+
+    import drivers.reader as reader_mod
+
+    opens = []
+
+    class Broken:
+        in_waiting = 0
+
+        def read(self, size: int) -> bytes:
+            raise serial.SerialException("device reports readiness to read but returned no data")
+
+        def close(self) -> None:
+            pass
+
+        def cancel_read(self) -> None:
+            pass
+
+    def fake_open(url, **kwargs):
+        opens.append(time.monotonic())
+        return Broken()
+
+    monkeypatch.setattr(reader_mod, "open_serial", fake_open)
+    reader = FrameReader("loop://", backoff_initial=0.01, backoff_max=0.16).start()
+    time.sleep(0.45)  # 0.01 + 0.02 + 0.04 + 0.08 + 0.16 = 0.31 s: at most 6-7 opens
+    assert reader.stop(timeout=1.0)
+    assert 3 <= len(opens) <= 8, len(opens)
