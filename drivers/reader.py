@@ -92,8 +92,14 @@ class FrameReader:
         return self
 
     def stop(self, timeout: float = 2.0) -> bool:
-        """Ask the thread to finish and wait up to ``timeout`` s; True if it has ended."""
+        """Ask the thread to finish and wait up to ``timeout`` s; True if it has ended.
+
+        Called from ``on_batch`` (the reader thread itself) it only asks, returns False, and the
+        thread ends after the callback returns.
+        """
         self._stop.set()
+        if threading.current_thread() is self._thread:
+            return False  # a thread cannot join itself
         port = self._port
         if port is not None:
             try:

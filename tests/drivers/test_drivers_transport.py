@@ -177,3 +177,18 @@ def test_reader_backs_off_when_the_port_opens_but_fails_at_once(monkeypatch) -> 
     time.sleep(0.45)  # 0.01 + 0.02 + 0.04 + 0.08 + 0.16 = 0.31 s: at most 6-7 opens
     assert reader.stop(timeout=1.0)
     assert 3 <= len(opens) <= 8, len(opens)
+
+
+def test_stop_from_the_callback_ends_the_reader_cleanly(capture) -> None:
+    got = []
+    reader = FrameReader(replay_url(capture, speed="max", chunk=360))
+
+    def on_batch(batch) -> None:
+        got.append(batch)
+        reader.stop()  # called on the reader thread itself
+
+    reader._on_batch = on_batch
+    reader.start()
+    assert _wait_until(lambda: not reader.health().running, timeout=2.0)
+    assert len(got) == 1 and reader.health().last_error is None
+    assert reader.stop()
