@@ -82,9 +82,20 @@ def record(
     _check_output(out)
     side = side_path(out)
     decoder = StreamDecoder(fmt, config)
-    port = open_port(url, baudrate=baudrate, timeout=timeout)
     tmp = out.with_name(out.name + ".partial")
     tmp_side = side.with_name(side.name + ".partial")
+    for path in (tmp, tmp_side):  # an unwritable output is bad input, found before the port opens
+        try:
+            with open(path, "wb"):
+                pass
+        except OSError as exc:
+            raise DriverInputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    try:
+        port = open_port(url, baudrate=baudrate, timeout=timeout)
+    except BaseException:
+        for path in (tmp, tmp_side):
+            path.unlink(missing_ok=True)
+        raise
     total = chunks = 0
     stopped_by = ""
     failure: BaseException | None = None

@@ -84,7 +84,7 @@ def test_cli_record_nonexistent_port(tmp_path, capsys) -> None:
     assert err == [
         "recal record: error: serial port /dev/ttyNOPE42 does not exist (is the device plugged in?)"
     ]
-    assert not (tmp_path / "x.bin").exists()
+    assert list(tmp_path.iterdir()) == []  # no partial files either
 
 
 def test_cli_record_bad_url_and_options(tmp_path, capsys) -> None:
@@ -150,3 +150,12 @@ def test_require_frames_messages() -> None:
 def test_decode_capture_missing_file(tmp_path) -> None:
     with pytest.raises(drivers.DriverInputError, match="does not exist"):
         decode_capture(tmp_path / "none.bin")
+
+
+def test_cli_record_unwritable_output_is_an_input_error(capture, tmp_path, capsys) -> None:
+    out = tmp_path / "x.bin"
+    (tmp_path / "x.bin.partial").mkdir()  # the temporary file cannot be created
+    assert main(["record", replay_url(capture, speed="max"), str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("recal record: error: cannot write")
+    assert not out.exists()
