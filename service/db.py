@@ -1,0 +1,491 @@
+"""The Store: sessions, positions, calibrations and events in SQLite or PostgreSQL.
+
+SQLAlchemy 2 ORM models plus one repository class. Every public write runs in one transaction,
+every call opens its own short-lived ORM session, so one :class:`Store` may be shared by threads.
+Versions of the coefficients are the calibration row ids (monotonic, never reused).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager, contextmanager, nullcontext
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from sqlalchemy import (
+    JSON,
+    DateTime,
+    Double,
+    Engine,
+    ForeignKey,
+    String,
+    Text,
+    create_engine,
+    event,
+    func,
+    inspect,
+    select,
+    text,
+)
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import ArgumentError, NoSuchModuleError, SQLAlchemyError
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
+from sqlalchemy.pool import StaticPool
+
+from recal.positions import CANONICAL_ORDER, Positions
+
+#: Schema version this code writes; a database with a newer one is refused.
+SCHEMA_VERSION = 1
+#: Positions columns stored as real columns (conventions section 4); others go to ``extra``.
+POSITION_COLUMNS: tuple[str, ...] = CANONICAL_ORDER
+
+
+class StoreError(RuntimeError):
+    """The database cannot be opened or used; the message is one line."""
+
+
+# ---- records ----------------------------------------------------------------------------
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+@dataclass(kw_only=True)
+class CalibrationRecord:
+    """One calibration, accepted or not, as stored and served (construct with keywords).
+
+    ``document`` is the ``recal calibrate --json`` object; ``version`` is None before insert.
+    """
+
+    version: int | None = None
+    created_at: datetime = field(default_factory=utc_now)
+    trigger: str
+    method: str
+    accepted: bool
+    reasons: list[str] = field(default_factory=list)
+    document: dict[str, Any]
+    positions_used: list[int] = field(default_factory=list)
+    prior_version: int | None = None
+
+
+# ---- ORM models -------------------------------------------------------------------------
+
+
+class Base(DeclarativeBase):
+    type_annotation_map = {
+        float: Double(),
+        datetime: DateTime(timezone=True),
+        dict[str, Any]: JSON(),
+        list[Any]: JSON(),
+    }
+
+
+class SchemaVersionRow(Base):
+    __tablename__ = "schema_version"
+
+    version: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    applied_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class SessionRow(Base):
+    """An acquisition session (a port, a replayed capture, a simulation)."""
+
+    __tablename__ = "sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    source: Mapped[str] = mapped_column(Text)
+    meta: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+
+class PositionRow(Base):
+    """One static window (conventions section 4); NULL where the column was absent."""
+
+    __tablename__ = "positions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    session_id: Mapped[int] = mapped_column(ForeignKey("sessions.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    start_s: Mapped[float | None]
+    end_s: Mapped[float | None]
+    samples: Mapped[float | None]
+    gyro_x: Mapped[float | None]
+    gyro_y: Mapped[float | None]
+    gyro_z: Mapped[float | None]
+    accel_x: Mapped[float | None]
+    accel_y: Mapped[float | None]
+    accel_z: Mapped[float | None]
+    temperature_c: Mapped[float | None]
+    temperature_rate_c_per_h: Mapped[float | None]
+    gyro_x_std: Mapped[float | None]
+    gyro_y_std: Mapped[float | None]
+    gyro_z_std: Mapped[float | None]
+    accel_x_std: Mapped[float | None]
+    accel_y_std: Mapped[float | None]
+    accel_z_std: Mapped[float | None]
+    extra: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+
+class CalibrationRow(Base):
+    """One calibration; ``id`` is the coefficients' version number."""
+
+    __tablename__ = "calibrations"
+    # SQLite would otherwise reuse the largest id after a delete; versions must never repeat.
+    __table_args__ = {"sqlite_autoincrement": True}
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    created_at: Mapped[datetime]
+    trigger: Mapped[str] = mapped_column(String(32))
+    method: Mapped[str] = mapped_column(String(64))
+    accepted: Mapped[bool] = mapped_column(index=True)
+    reasons: Mapped[list[Any]]
+    document: Mapped[dict[str, Any]]
+    positions_used: Mapped[list[Any]]
+    prior_version: Mapped[int | None] = mapped_column(ForeignKey("calibrations.id"))
+
+
+class EventRow(Base):
+    """A log line worth keeping: a job started, a calibration rejected, a reader error."""
+
+    __tablename__ = "events"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    kind: Mapped[str] = mapped_column(String(64), index=True)
+    message: Mapped[str] = mapped_column(Text)
+    data: Mapped[dict[str, Any] | None]
+
+
+_missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
+assert not _missing, f"PositionRow lacks conventions columns {_missing}"
+
+
+# ---- JSON ---------------------------------------------------------------------------------
+
+
+def _plain(obj: Any) -> Any:
+    """JSON-ready copy: numpy to Python, NaN/inf to None (PostgreSQL's json rejects NaN)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | np.ndarray):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, datetime):
+        return obj.isoformat()
+    return obj
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(_plain(obj), allow_nan=False)
+
+
+def _as_utc(value: datetime) -> datetime:
+    """SQLite hands back naive datetimes; everything stored is UTC."""
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+def _one_line(exc: BaseException) -> str:
+    """First non-empty line of a driver error (psycopg messages span several lines)."""
+    orig = getattr(exc, "orig", None) or exc
+    lines = [ln.strip() for ln in str(orig).splitlines() if ln.strip()]
+    return lines[0] if lines else type(orig).__name__
+
+
+# ---- the Store ----------------------------------------------------------------------------
+
+
+class Store:
+    """Repository over one database URL (``sqlite:///file.db`` or ``postgresql+psycopg://...``).
+
+    Opening connects once and checks the schema version; :meth:`create_schema` creates the
+    tables. Database failures surface as :class:`StoreError`.
+    """
+
+    def __init__(self, url: str, *, connect_timeout_s: float = 5.0) -> None:
+        try:
+            parsed = make_url(url)
+        except ArgumentError:
+            raise StoreError(
+                f"bad database URL {url!r}: expected e.g. sqlite:///recal.db or "
+                "postgresql+psycopg://user@host:5432/db"
+            ) from None
+        self.url = parsed.render_as_string(hide_password=True)
+        self._lock: AbstractContextManager[Any] = nullcontext()
+        try:
+            self._engine = self._make_engine(parsed, connect_timeout_s)
+        except (NoSuchModuleError, ImportError) as exc:
+            raise StoreError(f"cannot use database URL {self.url}: {_one_line(exc)}") from None
+        # Writers of a file SQLite database take the write lock up front (see _on_begin).
+        self._read = sessionmaker(self._engine, expire_on_commit=False)
+        self._write = sessionmaker(
+            self._engine.execution_options(recal_write=True), expire_on_commit=False
+        )
+        self._check_schema_version()
+
+    def _make_engine(self, url: Any, connect_timeout_s: float) -> Engine:
+        backend = url.get_backend_name()
+        if backend == "sqlite":
+            memory = url.database in (None, "", ":memory:")
+            args: dict[str, Any] = {"check_same_thread": False, "timeout": 30.0}
+            if memory:
+                # One shared connection holds the whole database; calls take turns on it.
+                self._lock = threading.RLock()
+                engine = create_engine(
+                    url, connect_args=args, poolclass=StaticPool, json_serializer=_dumps
+                )
+            else:
+                engine = create_engine(url, connect_args=args, json_serializer=_dumps)
+            event.listen(engine, "connect", _sqlite_on_connect(wal=not memory))
+            event.listen(engine, "begin", _sqlite_on_begin)
+            return engine
+        args = (
+            {"connect_timeout": max(1, round(connect_timeout_s))} if backend == "postgresql" else {}
+        )
+        return create_engine(url, connect_args=args, pool_pre_ping=True, json_serializer=_dumps)
+
+    def close(self) -> None:
+        """Release every pooled connection."""
+        self._engine.dispose()
+
+    @property
+    def dialect(self) -> str:
+        return self._engine.dialect.name
+
+    @contextmanager
+    def _tx(self, write: bool = False) -> Iterator[Session]:
+        """One ORM session in one transaction: committed on success, rolled back on error."""
+        maker = self._write if write else self._read
+        with self._lock:
+            try:
+                with maker.begin() as session:
+                    yield session
+            except SQLAlchemyError as exc:
+                raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+
+    # ---- schema -------------------------------------------------------------------------
+    def _check_schema_version(self) -> None:
+        try:
+            with self._lock, self._engine.connect() as conn:
+                if not inspect(conn).has_table(SchemaVersionRow.__tablename__):
+                    return
+                found = conn.execute(select(func.max(SchemaVersionRow.version))).scalar()
+        except SQLAlchemyError as exc:
+            raise StoreError(f"cannot open database {self.url}: {_one_line(exc)}") from None
+        _require_known(found, self.url)
+
+    def create_schema(self) -> None:
+        """Create missing tables and record the schema version (idempotent)."""
+        with self._tx(write=True) as s:
+            if self.dialect == "postgresql":  # two processes starting at once: one creates
+                s.execute(text("SELECT pg_advisory_xact_lock(7310599)"))
+            Base.metadata.create_all(s.connection())
+            found = s.scalar(select(func.max(SchemaVersionRow.version)))
+            _require_known(found, self.url)
+            if found is None:
+                s.add(SchemaVersionRow(version=SCHEMA_VERSION))
+
+    def schema_version(self) -> int | None:
+        with self._tx() as s:
+            return s.scalar(select(func.max(SchemaVersionRow.version)))
+
+    # ---- sessions and positions ---------------------------------------------------------
+    def add_session(self, source: str, meta: Mapping[str, Any] | None = None) -> int:
+        """Record an acquisition session; returns its id."""
+        with self._tx(write=True) as s:
+            row = SessionRow(source=source, meta=dict(meta or {}))
+            s.add(row)
+            s.flush()
+            return row.id
+
+    def add_positions(self, session_id: int, columns: Mapping[str, ArrayLike]) -> list[int]:
+        """Store positions (name -> (M,) array, conventions section 4); returns their ids.
+
+        The columns are validated as a :class:`Positions` first (RecalInputError if bad).
+        """
+        table = Positions.from_columns(columns, source=f"positions for session {session_id}")
+        known = [c for c in POSITION_COLUMNS if c in table.columns]
+        extra = [c for c in table.columns if c not in POSITION_COLUMNS]
+        rows = [
+            PositionRow(
+                session_id=session_id,
+                **{c: float(table.columns[c][i]) for c in known},
+                extra={c: _finite_or_none(table.columns[c][i]) for c in extra},
+            )
+            for i in range(len(table))
+        ]
+        with self._tx(write=True) as s:
+            if s.get(SessionRow, session_id) is None:
+                raise StoreError(f"unknown session {session_id}")
+            s.add_all(rows)
+            s.flush()
+            return [r.id for r in rows]
+
+    def positions(
+        self,
+        session_id: int | None = None,
+        since_id: int | None = None,
+        limit: int | None = None,
+    ) -> tuple[Positions, list[int]]:
+        """Positions in id order (the first ``limit`` after ``since_id``) and their ids.
+
+        Only columns present in every returned row are included; an empty result is an
+        empty :class:`Positions`.
+        """
+        query = select(PositionRow).order_by(PositionRow.id)
+        if session_id is not None:
+            query = query.where(PositionRow.session_id == session_id)
+        if since_id is not None:
+            query = query.where(PositionRow.id > since_id)
+        if limit is not None:
+            query = query.limit(limit)
+        with self._tx() as s:
+            rows = list(s.scalars(query))
+        ids = [r.id for r in rows]
+        source = f"store {self.url}" + (f" positions {ids[0]}..{ids[-1]}" if ids else "")
+        return Positions(columns=_columns_of(rows), source=source), ids
+
+    def count_positions(self, session_id: int | None = None) -> int:
+        query = select(func.count(PositionRow.id))
+        if session_id is not None:
+            query = query.where(PositionRow.session_id == session_id)
+        with self._tx() as s:
+            return int(s.scalar(query) or 0)
+
+    # ---- calibrations -------------------------------------------------------------------
+    def add_calibration(self, record: CalibrationRecord) -> int:
+        """Store a calibration (accepted or not); returns its version number."""
+        row = CalibrationRow(
+            created_at=_as_utc(record.created_at),
+            trigger=record.trigger,
+            method=record.method,
+            accepted=bool(record.accepted),
+            reasons=[str(r) for r in record.reasons],
+            document=record.document,
+            positions_used=[int(i) for i in record.positions_used],
+            prior_version=record.prior_version,
+        )
+        with self._tx(write=True) as s:
+            s.add(row)
+            s.flush()
+            return row.id
+
+    def current(self) -> CalibrationRecord | None:
+        """The latest accepted calibration."""
+        query = (
+            select(CalibrationRow)
+            .where(CalibrationRow.accepted.is_(True))
+            .order_by(CalibrationRow.id.desc())
+            .limit(1)
+        )
+        with self._tx() as s:
+            row = s.scalar(query)
+            return None if row is None else _record(row)
+
+    def calibration(self, version: int) -> CalibrationRecord | None:
+        with self._tx() as s:
+            row = s.get(CalibrationRow, version)
+            return None if row is None else _record(row)
+
+    def history(self, limit: int = 50) -> list[CalibrationRecord]:
+        """Calibrations, accepted or not, newest first."""
+        query = select(CalibrationRow).order_by(CalibrationRow.id.desc()).limit(limit)
+        with self._tx() as s:
+            return [_record(r) for r in s.scalars(query)]
+
+    # ---- events -------------------------------------------------------------------------
+    def add_event(self, kind: str, message: str, data: Mapping[str, Any] | None = None) -> int:
+        with self._tx(write=True) as s:
+            row = EventRow(kind=kind, message=message, data=None if data is None else dict(data))
+            s.add(row)
+            s.flush()
+            return row.id
+
+    def events(self, limit: int = 100) -> list[dict[str, Any]]:
+        """Newest first, as JSON-ready dicts (``created_at`` in ISO 8601 UTC)."""
+        query = select(EventRow).order_by(EventRow.id.desc()).limit(limit)
+        with self._tx() as s:
+            return [
+                {
+                    "id": r.id,
+                    "created_at": _as_utc(r.created_at).isoformat(),
+                    "kind": r.kind,
+                    "message": r.message,
+                    "data": r.data,
+                }
+                for r in s.scalars(query)
+            ]
+
+
+# ---- helpers ------------------------------------------------------------------------------
+
+
+def _require_known(found: int | None, url: str) -> None:
+    if found is not None and found > SCHEMA_VERSION:
+        raise StoreError(
+            f"database {url} has schema version {found}, newer than this code knows "
+            f"({SCHEMA_VERSION}): upgrade fog-recal"
+        )
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _columns_of(rows: Sequence[PositionRow]) -> dict[str, np.ndarray]:
+    if not rows:
+        return {}
+    cols: dict[str, np.ndarray] = {}
+    for name in POSITION_COLUMNS:
+        values = [getattr(r, name) for r in rows]
+        if all(v is not None for v in values):
+            cols[name] = np.array(values, dtype=float)
+    shared = [k for k in rows[0].extra if all(k in r.extra for r in rows)]
+    for name in shared:
+        cols[name] = np.array(
+            [math.nan if r.extra[name] is None else r.extra[name] for r in rows], dtype=float
+        )
+    return cols
+
+
+def _record(row: CalibrationRow) -> CalibrationRecord:
+    return CalibrationRecord(
+        version=row.id,
+        created_at=_as_utc(row.created_at),
+        trigger=row.trigger,
+        method=row.method,
+        accepted=row.accepted,
+        reasons=list(row.reasons),
+        document=row.document,
+        positions_used=list(row.positions_used),
+        prior_version=row.prior_version,
+    )
+
+
+def _sqlite_on_connect(wal: bool) -> Any:
+    def on_connect(dbapi_conn: Any, _record: Any) -> None:
+        # Hand transaction control to SQLAlchemy's "begin" event (pysqlite would defer BEGIN).
+        dbapi_conn.isolation_level = None
+        cursor = dbapi_conn.cursor()
+        cursor.execute("PRAGMA foreign_keys=ON")
+        if wal:  # readers never block the writer, and the writer never blocks readers
+            cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.close()
+
+    return on_connect
+
+
+def _sqlite_on_begin(conn: Any) -> None:
+    # IMMEDIATE: a writer waits (busy timeout) for the lock at BEGIN instead of failing later
+    # when its read snapshot turns out stale.
+    write = conn.get_execution_options().get("recal_write", False)
+    conn.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")

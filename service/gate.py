@@ -1,0 +1,183 @@
+"""The acceptance gate: may a new calibration replace the current coefficients?
+
+A calibration is rejected when its design is not observable enough, its residuals exceed the
+noise, a scale factor is poorly determined, or an estimated coefficient jumped too far from the
+current accepted version. Every decision carries plain-English reasons.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from recal.calibrate import CalibrationResult
+from service.db import CalibrationRecord
+
+#: Verdicts of recal.observability from worst to best.
+VERDICTS = ("insufficient", "partial", "full")
+#: Seed categories stored under the sensor key (conventions section 5); the rest are effects.
+_SEED_KEYS = ("scale", "bias", "misalignment", "quadratic")
+#: How many jumping coefficients a rejection names before summarising the rest.
+_MAX_LISTED = 5
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """Acceptance limits (see docs/service.md)."""
+
+    max_chi2_red: float = 4.0
+    max_change_sigma: float = 6.0
+    max_relative_scale_sigma: float = 2e-3
+    require_verdict: str = "partial"
+    allow_jump: bool = False
+
+    def __post_init__(self) -> None:
+        if self.require_verdict not in VERDICTS[1:]:
+            raise ValueError(
+                f"require_verdict must be 'partial' or 'full', not {self.require_verdict!r}"
+            )
+
+
+@dataclass
+class GateDecision:
+    accepted: bool
+    reasons: list[str] = field(default_factory=list)
+
+
+def gate(
+    result: CalibrationResult,
+    previous: CalibrationRecord | None,
+    config: GateConfig | None = None,
+) -> GateDecision:
+    """Accept or reject ``result`` against the current accepted record ``previous``.
+
+    Rejected: ``reasons`` says every limit broken. Accepted: ``reasons`` holds notes.
+    """
+    cfg = config or GateConfig()
+    names = result.layout.names
+    values = dict(zip(names, (float(v) for v in result.theta), strict=True))
+    estimated, sigma = _flat_result(result)
+    problems = _check_verdict(result, cfg) + _check_chi2(result, cfg)
+    problems += _check_scales(names, values, estimated, sigma, cfg)
+    if previous is None:
+        return GateDecision(
+            not problems, problems or ["no accepted calibration yet: nothing to compare against"]
+        )
+    jumps = _jumps(names, values, estimated, sigma, previous)
+    limit = cfg.max_change_sigma
+    moved = sorted(((n, s) for n, s in jumps if s > limit), key=lambda item: -item[1])
+    lines = [
+        f"{n} moved {s:.1f} sigma from version {previous.version} (limit {limit:g})"
+        for n, s in moved[:_MAX_LISTED]
+    ]
+    if len(moved) > _MAX_LISTED:
+        lines.append(f"{len(moved) - _MAX_LISTED} more coefficients moved beyond {limit:g} sigma")
+    notes = []
+    if cfg.allow_jump:
+        notes = [f"{line}; allowed (allow_jump)" for line in lines]
+    else:
+        problems += lines
+    if jumps and not moved:
+        name, change = max(jumps, key=lambda item: item[1])
+        notes.append(
+            f"largest change from version {previous.version}: {name} {change:.1f} sigma "
+            f"(limit {limit:g})"
+        )
+    return GateDecision(accepted=not problems, reasons=problems or notes)
+
+
+def _check_verdict(result: CalibrationResult, cfg: GateConfig) -> list[str]:
+    verdict = result.observability.verdict
+    if VERDICTS.index(verdict) >= VERDICTS.index(cfg.require_verdict):
+        return []
+    return [
+        f"observability verdict is {verdict} ({result.observability.message}); "
+        f"{cfg.require_verdict} or better is required"
+    ]
+
+
+def _check_chi2(result: CalibrationResult, cfg: GateConfig) -> list[str]:
+    if math.isfinite(result.chi2_red) and result.chi2_red <= cfg.max_chi2_red:
+        return []
+    return [
+        f"chi2_red {result.chi2_red:.3g} exceeds {cfg.max_chi2_red:g}: the residuals exceed "
+        "the window noise (wrong latitude or units, motion in a window, or a missing effect)"
+    ]
+
+
+def _check_scales(
+    names: list[str],
+    values: Mapping[str, float],
+    estimated: Mapping[str, bool],
+    sigma: Mapping[str, float],
+    cfg: GateConfig,
+) -> list[str]:
+    """Estimated scale factors whose relative 1-sigma exceeds the limit."""
+    out = []
+    for name in names:
+        if ".scale." not in name or not estimated[name]:
+            continue
+        relative = sigma[name] / abs(values[name]) if values[name] else math.inf
+        if not relative <= cfg.max_relative_scale_sigma:  # NaN sigma fails too
+            out.append(
+                f"{name} 1-sigma is {relative:.2g} of its value "
+                f"(limit {cfg.max_relative_scale_sigma:g})"
+            )
+    return out
+
+
+def _jumps(
+    names: list[str],
+    values: Mapping[str, float],
+    estimated: Mapping[str, bool],
+    sigma: Mapping[str, float],
+    previous: CalibrationRecord,
+) -> list[tuple[str, float]]:
+    """(name, change in combined sigmas) for every estimated coefficient the previous has."""
+    doc = previous.document
+    before = _flat_document(doc.get("coefficients") or {}, names)
+    before_sigma = _flat_document(doc.get("uncertainty") or {}, names)
+    out = []
+    for name in names:
+        old = before.get(name)
+        if not estimated[name] or old is None:
+            continue  # held now, or absent before (e.g. the previous had no accel triad)
+        # A coefficient held last time has no sigma of its own: only the new one counts.
+        combined = math.hypot(sigma[name], before_sigma.get(name) or 0.0)
+        if combined > 0:
+            out.append((name, abs(values[name] - old) / combined))
+    return out
+
+
+def _flat_result(result: CalibrationResult) -> tuple[dict[str, bool], dict[str, float]]:
+    """Per flat parameter: estimated or not, and its 1-sigma (NaN where held)."""
+    estimated: dict[str, bool] = {}
+    sigma: dict[str, float] = {}
+    for term in (t for m in result.layout.models for t in m.terms):
+        status, sd = result.status[term.name], result.uncertainty[term.name]
+        for p, st, s in zip(term.params, status, sd, strict=True):
+            estimated[f"{term.name}.{p}"] = st == "estimated"
+            sigma[f"{term.name}.{p}"] = float(s)
+    return estimated, sigma
+
+
+def _flat_document(section: Mapping[str, Any], names: list[str]) -> dict[str, float]:
+    """Numeric leaves of a section 5 layout (coefficients or uncertainty) by flat name."""
+    out: dict[str, float] = {}
+    position: dict[str, int] = {}
+    for name in names:
+        term, param = name.rsplit(".", 1)
+        sensor, key = term.split(".", 1)
+        i = position[term] = position.get(term, -1) + 1
+        if key in _SEED_KEYS:
+            entry = (section.get(sensor) or {}).get(key)
+        else:
+            entry = (section.get("effects") or {}).get(term)
+        leaf = entry.get(param) if isinstance(entry, Mapping) else None
+        if isinstance(entry, list) and i < len(entry):
+            leaf = entry[i]
+        if isinstance(leaf, int | float) and math.isfinite(leaf):
+            out[name] = float(leaf)
+    return out
