@@ -106,18 +106,22 @@ def build_service(settings: Settings, with_reader: bool = True, executor: Any = 
     return service
 
 
-def run_daemon(settings: Settings) -> int:
-    """Serve until SIGINT/SIGTERM. Returns the process exit code."""
+def make_server(service: Service) -> Any:
+    """The uvicorn server for the service's HTTP API (not started)."""
     import uvicorn
 
     from service.api import create_app
 
-    service = build_service(settings)
     app = create_app(service.store, service.publisher, trigger=service.scheduler.trigger,
                      health=service.health)  # fmt: skip
-    server = uvicorn.Server(
-        uvicorn.Config(app, host=settings.api.host, port=settings.api.port, log_level="warning")
-    )
+    api = service.settings.api
+    return uvicorn.Server(uvicorn.Config(app, host=api.host, port=api.port, log_level="warning"))
+
+
+def run_daemon(settings: Settings) -> int:
+    """Serve until SIGINT/SIGTERM. Returns the process exit code."""
+    service = build_service(settings)
+    server = make_server(service)
     stop = threading.Event()
 
     def watchdog() -> None:

@@ -174,8 +174,7 @@ class Scheduler:
             self._new_positions += len(ids)
             if self._new_positions < s.min_new_positions or self.busy:
                 return
-        _, all_ids = self._store.positions(limit=s.use_last_positions)
-        if len(all_ids) >= s.min_positions:
+        if self._store.count_positions() >= s.min_positions:
             try:
                 self.trigger("auto")
             except SchedulerBusy:
@@ -191,7 +190,10 @@ class Scheduler:
         with self._lock:
             if self.busy:
                 raise SchedulerBusy("a recalibration is already running")
-            positions, ids = self._store.positions(limit=s.scheduler.use_last_positions)
+            positions, ids = self._store.positions()
+            keep = s.scheduler.use_last_positions
+            if len(ids) > keep:  # the most recent windows describe the unit as it is now
+                positions, ids = positions.subset(np.arange(len(ids) - keep, len(ids))), ids[-keep:]
             previous = self._store.current()
             options = CalibrationOptions(
                 sensor=None if s.scheduler.sensor == "both" else s.scheduler.sensor,
@@ -249,6 +251,12 @@ class Scheduler:
             self._store_outcome(outcome, job, trigger, ids, previous, method)
         finally:
             self._finished.set()
+        # positions that arrived while this job ran may already justify the next one
+        if self._new_positions >= self._settings.scheduler.min_new_positions:
+            try:
+                self.trigger("auto")
+            except (SchedulerBusy, RuntimeError):  # busy, or shutting down
+                pass
 
     def _store_outcome(self, outcome: JobOutcome, job: int, trigger: str, ids: list[int],
                        previous: Any, method: str) -> None:  # fmt: skip

@@ -144,16 +144,13 @@ def _print_summary(service, truth) -> None:
 
 
 def _serve(service, settings) -> int:
-    import uvicorn
+    from service.daemon import make_server
 
-    from service.api import create_app
-
-    app = create_app(service.store, service.publisher, trigger=service.scheduler.trigger,
-                     health=service.health)  # fmt: skip
     url = f"http://{settings.api.host}:{settings.api.port}"
-    print(f"\nserving the demo at {url}  (try {url}/coefficients, {url}/docs; Ctrl-C stops)")
+    print(f"\nserving the demo at {url}  (try {url}/coefficients, {url}/docs; Ctrl-C stops)",
+          flush=True)  # fmt: skip
     try:
-        uvicorn.run(app, host=settings.api.host, port=settings.api.port, log_level="warning")
+        make_server(service).run()
     finally:
         service.close()
     return 0
