@@ -1,0 +1,110 @@
+"""Service test fixtures: Store URLs (SQLite file and a throwaway PostgreSQL database) and real
+calibration documents.
+
+PostgreSQL comes from RECAL_TEST_POSTGRES (default: the local trust-auth server's ``test``
+database); each test session creates its own ``recal_test_<random>`` database and drops it at
+the end. Unreachable PostgreSQL skips those tests, except under CI, where it fails them.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import psycopg
+import pytest
+from psycopg import sql
+from sqlalchemy import create_engine
+from sqlalchemy.engine import make_url
+
+from recal.calibrate import CalibrationResult, calibrate
+from recal.coefficients import CoefficientSet
+from recal.simulate import simulate_positions
+from service.db import Base, CalibrationRecord, Store
+
+PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
+
+
+def _admin() -> psycopg.Connection:
+    return psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=3)
+
+
+@pytest.fixture(scope="session")
+def postgres_url() -> Iterator[str]:
+    """SQLAlchemy URL of a fresh database, dropped after the session."""
+    try:
+        admin = _admin()
+    except psycopg.OperationalError as exc:
+        reason = f"PostgreSQL at {PG_ADMIN_URL} unreachable: {str(exc).splitlines()[0]}"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    name = f"recal_test_{secrets.token_hex(4)}"
+    with admin:
+        admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
+    url = make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg", database=name)
+    try:
+        yield url.render_as_string(hide_password=False)
+    finally:
+        with _admin() as admin:
+            admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(sql.Identifier(name)))
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """Each Store test runs on a SQLite file and on PostgreSQL (tables dropped afterwards)."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'recal.db'}"
+        return
+    url = request.getfixturevalue("postgres_url")
+    yield url
+    engine = create_engine(url)
+    Base.metadata.drop_all(engine)
+    engine.dispose()
+
+
+@pytest.fixture
+def store(store_url: str) -> Iterator[Store]:
+    st = Store(store_url)
+    st.create_schema()
+    yield st
+    st.close()
+
+
+@pytest.fixture
+def sqlite_store(tmp_path: Path) -> Iterator[Store]:
+    st = Store(f"sqlite:///{tmp_path / 'api.db'}")
+    st.create_schema()
+    yield st
+    st.close()
+
+
+@pytest.fixture(scope="session")
+def calibration_result() -> CalibrationResult:
+    """A real LM calibration of the simulated 24-position design (both triads)."""
+    return calibrate(simulate_positions(CoefficientSet.seed_truth(), seed=1))
+
+
+@pytest.fixture(scope="session")
+def document(calibration_result: CalibrationResult) -> dict[str, Any]:
+    """The ``recal calibrate --json`` object of :func:`calibration_result`."""
+    return calibration_result.to_json_dict()
+
+
+@pytest.fixture
+def make_record(document: dict[str, Any]) -> Callable[..., CalibrationRecord]:
+    """Factory of CalibrationRecords around the real document (keywords override fields)."""
+
+    def make(**fields: Any) -> CalibrationRecord:
+        base: dict[str, Any] = {
+            "trigger": "auto",
+            "method": "lm",
+            "accepted": True,
+            "document": document,
+        }
+        return CalibrationRecord(**(base | fields))
+
+    return make
