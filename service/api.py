@@ -1,9 +1,10 @@
 """The REST and Server-Sent Events API over the Store and the Publisher (FastAPI).
 
 ``create_app(store, publisher, trigger, health)`` builds the app; the daemon serves it with
-uvicorn. ``trigger()`` queues a manual recalibration and returns a job id, or None when one is
-already running (409). SSE streams end when the client goes or :meth:`Publisher.close` is
-called (call it before stopping uvicorn: uvicorn waits for open streams before shutting down).
+uvicorn. ``trigger()`` queues a manual recalibration and returns a job id; it returns None or
+raises RuntimeError (e.g. ``pipeline.SchedulerBusy``) when it cannot start one (409). SSE streams
+end when the client goes or when :meth:`Publisher.close` is called: call it as shutdown begins,
+since uvicorn waits for open streams before it shuts the app down.
 """
 
 from __future__ import annotations
@@ -136,12 +137,18 @@ def create_app(
         "/recalibrate",
         status_code=202,
         response_model=QueuedOut,
-        responses={409: {"description": "a job is running"}, 503: {"description": "no trigger"}},
+        responses={
+            409: {"description": "a job is running or cannot start"},
+            503: {"description": "no trigger"},
+        },
     )
     def post_recalibrate() -> QueuedOut:
         if trigger is None:
             raise HTTPException(503, "manual recalibration is not available in this service")
-        job = trigger()
+        try:
+            job = trigger()
+        except RuntimeError as exc:  # busy, or the scheduler is shutting down
+            raise HTTPException(409, str(exc) or "a recalibration cannot start now") from None
         if job is None:
             raise HTTPException(409, "a recalibration is already running")
         return QueuedOut(queued=True, job=job)
