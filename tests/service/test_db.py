@@ -194,8 +194,10 @@ def test_unusable_urls_raise_one_line_store_errors(url: str, message: str) -> No
 
 
 def test_missing_tables_are_a_store_error(tmp_path: Path) -> None:
+    st = Store(f"sqlite:///{tmp_path / 'empty.db'}")
     with pytest.raises(StoreError, match="no such table"):
-        Store(f"sqlite:///{tmp_path / 'empty.db'}").add_session("x")
+        st.add_session("x")
+    st.close()
 
 
 def test_sqlite_file_uses_wal_and_foreign_keys(tmp_path: Path) -> None:
@@ -221,3 +223,4 @@ def test_in_memory_sqlite(make_record: Callable[..., CalibrationRecord]) -> None
     current = st.current()
     assert current is not None and current.version == version
     assert current.created_at.tzinfo == UTC
+    st.close()
