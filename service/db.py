@@ -230,7 +230,11 @@ class Store:
         self._write = sessionmaker(
             self._engine.execution_options(recal_write=True), expire_on_commit=False
         )
-        self._check_schema_version()
+        try:
+            self._check_schema_version()
+        except StoreError:
+            self._engine.dispose()  # a refused database keeps no pooled connection
+            raise
 
     def _make_engine(self, url: Any, connect_timeout_s: float) -> Engine:
         backend = url.get_backend_name()
