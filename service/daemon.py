@@ -75,6 +75,7 @@ class Service:
         return out
 
     def close(self) -> None:
+        self.publisher.close()  # ends open /events streams
         if self.reader is not None:
             self.reader.stop()
         self.ingest.flush()
@@ -115,7 +116,10 @@ def make_server(service: Service) -> Any:
     app = create_app(service.store, service.publisher, trigger=service.scheduler.trigger,
                      health=service.health)  # fmt: skip
     api = service.settings.api
-    return uvicorn.Server(uvicorn.Config(app, host=api.host, port=api.port, log_level="warning"))
+    # open /events streams would hold a graceful shutdown forever: give them a few seconds
+    config = uvicorn.Config(app, host=api.host, port=api.port, log_level="warning",
+                            timeout_graceful_shutdown=3)  # fmt: skip
+    return uvicorn.Server(config)
 
 
 def run_daemon(settings: Settings) -> int:

@@ -247,16 +247,20 @@ class Scheduler:
             log.exception("recalibration %d crashed", job)
             outcome = JobOutcome(None, False, [f"internal error: {exc}"], error=str(exc))
         self.last_outcome = outcome
+        chained = False
         try:
             self._store_outcome(outcome, job, trigger, ids, previous, method)
+            # positions that arrived while this job ran may already justify the next one;
+            # started before "finished" is signalled, so a waiter never sees a false idle
+            if self._new_positions >= self._settings.scheduler.min_new_positions:
+                try:
+                    self.trigger("auto")
+                    chained = True
+                except RuntimeError:  # busy, or the executor is shutting down
+                    pass
         finally:
-            self._finished.set()
-        # positions that arrived while this job ran may already justify the next one
-        if self._new_positions >= self._settings.scheduler.min_new_positions:
-            try:
-                self.trigger("auto")
-            except (SchedulerBusy, RuntimeError):  # busy, or shutting down
-                pass
+            if not chained:
+                self._finished.set()
 
     def _store_outcome(self, outcome: JobOutcome, job: int, trigger: str, ids: list[int],
                        previous: Any, method: str) -> None:  # fmt: skip

@@ -1,0 +1,100 @@
+"""The service end to end: replay:// port -> pipeline -> SQLite -> gate -> publish -> HTTP."""
+
+import json
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+
+from recal.session import simulate_session
+from service.capture_sim import kvh_like_truth, session_to_kvh
+from service.cli.main import main
+from service.config import (
+    DetectorSettings,
+    DeviceSettings,
+    SchedulerSettings,
+    Settings,
+    SiteSettings,
+)
+from service.daemon import build_service, make_server
+
+
+def test_demo_runs_the_whole_product(tmp_path, capsys):
+    folder = tmp_path / "demo"
+    assert main(["demo", "--dir", str(folder), "--seed", "3"]) == 0
+    out = capsys.readouterr().out
+    published = json.loads((folder / "coefficients.json").read_text())
+    assert published["version"] >= 1 and "gyro" in published["coefficients"]
+    # every printed error / sigma of the accepted version is within 3.5
+    zs = [float(v) for line in out.splitlines() if line.startswith("  gyro.") or
+          line.startswith("  accel.") for v in line.split()[1:]]  # fmt: skip
+    assert len(zs) == 12 and max(abs(z) for z in zs) < 3.5
+    truth = json.loads((folder / "truth.json").read_text())
+    assert truth["gyro"]["scale"][0] == pytest.approx(1.0, abs=1e-3)
+
+
+@pytest.fixture()
+def capture(tmp_path):
+    rate = 200.0
+    truth = kvh_like_truth(5)
+    session = simulate_session(truth, "24", latitude_deg=40.0, seed=5, rate_hz=rate,
+                               window_s=20.0, slew_s=4.0, first_hold_s=35.0)  # fmt: skip
+    data, _ = session_to_kvh(session, rng=5)
+    path = tmp_path / "session.bin"
+    path.write_bytes(data)
+    return path, len(data), rate, truth
+
+
+def test_daemon_over_a_real_http_server(tmp_path, capture):
+    path, size, rate, truth = capture
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path / 'recal.db'}",
+        publish_path=str(tmp_path / "coefficients.json"),
+        device=DeviceSettings(url=f"replay://{path}?speed=max&rate={rate:g}", rate_hz=rate),
+        site=SiteSettings(latitude_deg=40.0),
+        detector=DetectorSettings(init_still_s=25.0, min_duration_s=5.0),
+        scheduler=SchedulerSettings(min_positions=100, min_new_positions=100),  # manual only
+        api={"port": 0},
+    )
+    service = build_service(settings)
+    server = make_server(service)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 20
+        while not server.started:
+            assert time.monotonic() < deadline, "server did not start"
+            time.sleep(0.02)
+        port = server.servers[0].sockets[0].getsockname()[1]
+        base = f"http://127.0.0.1:{port}"
+        with httpx.Client(base_url=base, timeout=30) as http:
+            assert http.get("/coefficients").status_code == 404  # nothing accepted yet
+            service.reader.start()
+            while service.reader.health().counters.bytes_in < size:
+                assert time.monotonic() < deadline + 30, "replay did not finish"
+                time.sleep(0.05)
+            service.ingest.flush()
+            health = http.get("/health").json()
+            assert health["status"] == "ok" and health["positions"] == 24
+            r = http.post("/recalibrate")
+            assert r.status_code == 202
+            service.scheduler.wait(timeout=120)
+            current = http.get("/coefficients")
+            assert current.status_code == 200
+            doc = current.json()
+            version = doc["version"]
+            assert doc["accepted"] and len(doc["positions_used"]) == 24
+            coeffs = doc["document"]["coefficients"]
+            sd = np.array(doc["document"]["uncertainty"]["gyro"]["bias"])
+            err = np.array(coeffs["gyro"]["bias"]) - truth.values["gyro.bias"]
+            assert np.all(np.abs(err) < 4 * sd)
+            assert http.get(f"/coefficients/{version}").json()["version"] == version
+            assert http.get("/coefficients/999").status_code == 404
+            published = json.loads((tmp_path / "coefficients.json").read_text())
+            assert published["version"] == version
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        service.close()
