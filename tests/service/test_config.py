@@ -39,3 +39,11 @@ def test_bad_config_is_one_line(tmp_path, text, message):
 def test_missing_config_file(tmp_path):
     with pytest.raises(RecalInputError, match="does not exist"):
         load_settings(tmp_path / "nope.toml")
+
+
+def test_shipped_example_config_loads():
+    from pathlib import Path
+
+    s = load_settings(Path(__file__).resolve().parents[2] / "deploy" / "recal.toml")
+    assert s.device.url == "/dev/ttyUSB0" and s.site.latitude_deg == 57.7
+    assert s.scheduler.sensor == "both" and s.api.port == 8750
