@@ -8,11 +8,14 @@ pings the watchdog while the reader is healthy.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import signal
 import socket
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -108,10 +111,28 @@ def build_service(settings: Settings, with_reader: bool = True, executor: Any = 
 
 
 def make_server(service: Service) -> Any:
-    """The uvicorn server for the service's HTTP API (not started)."""
+    """The uvicorn server for the service's HTTP API (not started).
+
+    SIGINT and SIGTERM make it stop serving and return normally (uvicorn would re-raise them,
+    and a re-raised SIGTERM kills the process before the pipeline is flushed and closed).
+    """
     import uvicorn
 
     from service.api import create_app
+
+    class Server(uvicorn.Server):
+        @contextlib.contextmanager
+        def capture_signals(self) -> Iterator[None]:
+            if threading.current_thread() is not threading.main_thread():
+                yield
+                return
+            sigs = (signal.SIGINT, signal.SIGTERM)
+            previous = {sig: signal.signal(sig, self.handle_exit) for sig in sigs}
+            try:
+                yield
+            finally:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
 
     app = create_app(service.store, service.publisher, trigger=service.scheduler.trigger,
                      health=service.health)  # fmt: skip
@@ -119,7 +140,7 @@ def make_server(service: Service) -> Any:
     # open /events streams would hold a graceful shutdown forever: give them a few seconds
     config = uvicorn.Config(app, host=api.host, port=api.port, log_level="warning",
                             timeout_graceful_shutdown=3)  # fmt: skip
-    return uvicorn.Server(config)
+    return Server(config)
 
 
 def run_daemon(settings: Settings) -> int:

@@ -10,6 +10,7 @@ the version and publishes it when accepted.
 from __future__ import annotations
 
 import logging
+import signal
 import threading
 from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
@@ -137,6 +138,11 @@ def calibration_job(
     return JobOutcome(result.to_json_dict(), decision.accepted, list(decision.reasons))
 
 
+def _worker_init() -> None:
+    # Ctrl-C reaches the whole process group: the daemon decides how jobs end, not the worker
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 class SchedulerBusy(RuntimeError):
     """A recalibration is already running."""
 
@@ -155,7 +161,7 @@ class Scheduler:
         self._settings = settings
         self._publisher = publisher
         self._executor = executor or ProcessPoolExecutor(
-            max_workers=1, mp_context=get_context("spawn")
+            max_workers=1, mp_context=get_context("spawn"), initializer=_worker_init
         )
         self._owns_executor = executor is None
         self._lock = threading.Lock()
