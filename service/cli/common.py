@@ -37,17 +37,17 @@ def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
         raise RecalInputError(f"{what} {path} is not UTF-8 text") from None
 
 
-def atomic_write(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and a rename, so a
-    failure never leaves a half-written file under the final name."""
+def atomic_write(path: str | os.PathLike[str], content: str | bytes) -> None:
+    """Write ``content`` (text as UTF-8, or bytes) to ``path`` via a temporary file in the same
+    folder and a rename, so a failure never leaves a half-written file under the final name."""
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
         raise RecalInputError(f"output folder {folder} does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(content.encode("utf-8") if isinstance(content, str) else content)
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

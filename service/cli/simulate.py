@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -267,7 +265,7 @@ def _write_capture(
         damage,
         np.random.default_rng((args.seed, 1)),
     )
-    _atomic_write_bytes(args.capture, data)
+    atomic_write(args.capture, data)
     first_s = (session.hold_last[0] - session.hold_first[0] + 1) / args.rate
     print(
         f"recal simulate: wrote {info.frames - info.dropped.shape[0]} {info.format} frames "
@@ -279,19 +277,3 @@ def _write_capture(
         file=sys.stderr,
     )
     return session_positions(session, sensors)
-
-
-def _atomic_write_bytes(path: str, data: bytes) -> None:
-    """Write via a temporary file in the same folder and os.replace: never a half-written file."""
-    p = Path(path)
-    folder = p.parent if str(p.parent) else Path(".")
-    if not folder.is_dir():
-        raise RecalInputError(f"output folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -11,20 +10,16 @@ import pytest
 import drivers
 from drivers.crc import crc32_mpeg2_rows, frames_crc_ok
 
-# ../shared/data beside the project root (tests/drivers -> tests -> project root).
-SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
-
 
 @pytest.fixture(scope="module")
-def sample_frame() -> bytes:
-    if not SHARED_DATA.is_dir():
-        if os.environ.get("CI"):
-            pytest.fail(f"shared data folder {SHARED_DATA} is missing under CI")
-        pytest.skip(f"shared data folder {SHARED_DATA} not present")
-    return (SHARED_DATA / "kvh_formatA_sample_frame.bin").read_bytes()
+def sample_frame(shared_data: Path) -> bytes:
+    """The manual's frame from ../shared/data (see tests/conftest.py for the CI rule)."""
+    return (shared_data / "kvh_formatA_sample_frame.bin").read_bytes()
 
 
 def test_shared_data_path_is_beside_project() -> None:
+    from conftest import SHARED_DATA
+
     project_root = Path(__file__).resolve().parents[2]
     assert (project_root / "pyproject.toml").is_file()
     assert SHARED_DATA == project_root.parent / "shared" / "data"
