@@ -17,12 +17,10 @@ def sample_frame(shared_data: Path) -> bytes:
     return (shared_data / "kvh_formatA_sample_frame.bin").read_bytes()
 
 
-def test_shared_data_path_is_beside_project() -> None:
-    from conftest import SHARED_DATA
-
+def test_shared_data_path_is_beside_project(shared_data: Path) -> None:
     project_root = Path(__file__).resolve().parents[2]
     assert (project_root / "pyproject.toml").is_file()
-    assert SHARED_DATA == project_root.parent / "shared" / "data"
+    assert shared_data == project_root.parent / "shared" / "data"
 
 
 def test_sample_frame_decodes_to_conventions_values(sample_frame: bytes) -> None:
