@@ -150,12 +150,16 @@ def run_daemon(settings: Settings) -> int:
     stop = threading.Event()
 
     def watchdog() -> None:
-        while not stop.wait(5.0):
-            if server.started:
-                sd_notify("READY=1")
-                h = service.reader.health() if service.reader else None
-                if h is None or h.running:
-                    sd_notify("WATCHDOG=1")
+        while not server.started:  # READY=1 as soon as the API answers
+            if stop.wait(0.1):
+                return
+        sd_notify("READY=1")
+        beat = 0
+        while not stop.wait(1.0):
+            service.ingest.poll()  # frames held while the stream pauses still get detected
+            beat += 1
+            if beat % 5 == 0 and (service.reader is None or service.reader.health().running):
+                sd_notify("WATCHDOG=1")  # pet the watchdog while the reader thread lives
 
     service.reader.start()
     threading.Thread(target=watchdog, name="watchdog", daemon=True).start()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass
@@ -32,6 +33,8 @@ log = logging.getLogger("recal.pipeline")
 
 #: Frames buffered before a detector call (4 s at 1 kHz): a call costs ~0.4 ms whatever its size.
 DETECTOR_BLOCK = 4096
+#: ... but never hold frames longer than this (host time, s), so slow streams are not delayed.
+DETECTOR_MAX_WAIT_S = 1.0
 
 
 def detector_config(settings: Settings) -> DetectorConfig:
@@ -65,6 +68,7 @@ class Ingest:
         self._on_positions = on_positions
         self._pending: list[Any] = []
         self._count = 0
+        self._first_pending = 0.0
         self._lock = threading.Lock()
         self.frames = 0
         self.windows = 0
@@ -74,12 +78,23 @@ class Ingest:
         with self._lock:
             if len(batch) == 0:
                 return []
+            if not self._pending:
+                self._first_pending = time.monotonic()
             self._pending.append(batch)
             self._count += len(batch)
             self.frames += len(batch)
-            if self._count < DETECTOR_BLOCK:
+            if self._count < DETECTOR_BLOCK and not self._stale():
                 return []
             return self._run(flush=False)
+
+    def poll(self) -> list[int]:
+        """Run the detector on frames held longer than DETECTOR_MAX_WAIT_S (call periodically:
+        when the stream pauses, no new batch arrives to push them through)."""
+        with self._lock:
+            return self._run(flush=False) if self._pending and self._stale() else []
+
+    def _stale(self) -> bool:
+        return time.monotonic() - self._first_pending >= DETECTOR_MAX_WAIT_S
 
     def flush(self) -> list[int]:
         """End of stream: close the open window, if any."""

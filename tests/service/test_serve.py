@@ -1,0 +1,68 @@
+"""`recal serve` as a real process: systemd readiness, HTTP, clean stop on SIGTERM."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import httpx
+
+from recal.session import simulate_session
+from service.capture_sim import kvh_like_truth, session_to_kvh
+from service.db import Store
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path):
+    session = simulate_session(kvh_like_truth(2), "24", latitude_deg=50.0, seed=2, rate_hz=100.0,
+                               window_s=15.0, slew_s=3.0, first_hold_s=30.0)  # fmt: skip
+    capture = tmp_path / "capture.bin"
+    capture.write_bytes(session_to_kvh(session, rng=2)[0])
+    port = _free_port()
+    db = tmp_path / "recal.db"
+    (tmp_path / "recal.toml").write_text(
+        f'database_url = "sqlite:///{db}"\npublish_path = "{tmp_path / "c.json"}"\n'
+        f'[device]\nurl = "replay://{capture}?speed=max&rate=100"\nrate_hz = 100\n'
+        f"[site]\nlatitude_deg = 50.0\n[detector]\ninit_still_s = 20\nmin_duration_s = 5\n"
+        f"[api]\nport = {port}\n"
+    )
+    notify_path = str(tmp_path / "notify.sock")
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(notify_path)
+    notify.settimeout(30)
+    env = {**os.environ, "NOTIFY_SOCKET": notify_path}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "serve", "--config",
+         str(tmp_path / "recal.toml"), "--log-level", "WARNING"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert notify.recv(64) == b"READY=1"
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as http:
+            deadline = time.monotonic() + 60
+            # the last hold is still open while the stream idles: 23 windows have closed
+            while http.get("/health").json()["positions"] < 23:
+                assert time.monotonic() < deadline, http.get("/health").json()
+                time.sleep(0.2)
+            # the scheduler (12 positions, then every 4 new ones) has run
+            while http.get("/coefficients").status_code != 200:
+                assert time.monotonic() < deadline, http.get("/coefficients/history").json()
+                time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0, proc.stderr.read()
+        assert notify.recv(64) == b"STOPPING=1"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        notify.close()
+    store = Store(f"sqlite:///{db}")
+    events = [e["kind"] for e in store.events(limit=100)]
+    assert "start" in events and "stop" in events and "calibration" in events
+    assert store.count_positions() == 24  # the open window was closed on the way out
