@@ -15,6 +15,7 @@ import importlib
 import os
 import pkgutil
 import sys
+from typing import Any
 from urllib.parse import quote, unquote, urlencode, urlsplit
 
 import serial
@@ -85,12 +86,16 @@ def _describe_open_error(url: str, exc: BaseException) -> str:
     return f"cannot open {url}: {exc}"
 
 
-def open_serial(url: str, baudrate: int = DEFAULT_BAUD, timeout: float | None = 0.1, **kwargs):
+def open_serial(
+    url: str, baudrate: int = DEFAULT_BAUD, timeout: float | None = 0.1, **kwargs: Any
+) -> serial.SerialBase:
     """serial.serial_for_url with the project's defaults; raises pyserial's own errors."""
     return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, **kwargs)
 
 
-def open_port(url: str, baudrate: int = DEFAULT_BAUD, timeout: float | None = 0.1, **kwargs):
+def open_port(
+    url: str, baudrate: int = DEFAULT_BAUD, timeout: float | None = 0.1, **kwargs: Any
+) -> serial.SerialBase:
     """Open a port for the user: any failure becomes a one-line DriverInputError."""
     check_url(url)
     try:

@@ -72,7 +72,9 @@ class CoefficientSet:
         )
 
     # ---- flat vectors ---------------------------------------------------------------------
-    def to_vector(self, layout: ParameterLayout, fallback: Mapping[str, np.ndarray] | None = None):
+    def to_vector(
+        self, layout: ParameterLayout, fallback: Mapping[str, np.ndarray] | None = None
+    ) -> np.ndarray:
         """Flat vector for ``layout``; missing terms take ``fallback`` or the term's neutral value."""
         parts = []
         for m in layout.models:
