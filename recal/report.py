@@ -1,4 +1,4 @@
-"""HTML report of a diagnosis: tables and inline SVG plots, returned as a string.
+"""HTML reports of a calibration or a diagnosis: tables and inline SVG plots, as strings.
 
 No plotting library is needed: the charts are plain SVG, so the report opens in any browser on
 the vessel's computer and can be attached to an e-mail as one file. The caller writes it.
@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from recal.calibrate import CalibrationResult
 from recal.diagnose import Diagnosis
 
 _W, _H, _PAD = 720, 220, 40
@@ -88,6 +89,9 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
                            d.final_residuals[name], "#2471a3"))  # fmt: skip
         plots.append(f"<h3>{esc(name)} residual per position</h3>"
                      + _bars(series, inv["noise_floor"], inv["unit"]))  # fmt: skip
+        if d.suggested_effects:  # zoomed: does the corrected model reach the noise band?
+            plots.append(f"<h3>{esc(name)} with the suggested effects, zoomed</h3>"
+                         + _bars(series[1:], inv["noise_floor"], inv["unit"]))  # fmt: skip
     suggestion = (
         "Add: <b>"
         + esc(", ".join(d.suggested_effects))
@@ -115,5 +119,87 @@ above the noise floor that the effect removes.</p>
 <table><tr><th>effect</th><th>delta BIC</th><th>p</th><th>significant</th><th>explained</th>
 <th>physics</th><th>note</th></tr>{"".join(cands)}</table>
 {"".join(plots)}
+</body></html>
+"""
+
+
+def _singular_values(s: np.ndarray, names_kept: int, info_min: float) -> str:
+    """Log-scale bars of the Jacobian's singular values with the observability threshold."""
+    s = np.maximum(np.asarray(s, float), 1e-12)
+    lo, hi = np.log10(min(s.min(), info_min) / 3), np.log10(s.max() * 3)
+    x0, width = _PAD + 20, _W - _PAD - 30
+    slot = width / len(s)
+
+    def y(v: float) -> float:
+        return 20 + (_H - 40) * (hi - np.log10(v)) / (hi - lo)
+
+    parts = [f'<svg width="{_W}" height="{_H}" xmlns="http://www.w3.org/2000/svg" '
+             'font-family="sans-serif" font-size="11">']  # fmt: skip
+    for i, v in enumerate(s):
+        colour = "#2471a3" if i < names_kept else "#aaa"
+        top = y(v)
+        parts.append(f'<rect x="{x0 + i * slot + 1:.1f}" y="{top:.1f}" width="{slot - 2:.1f}" '
+                     f'height="{_H - 20 - top:.1f}" fill="{colour}"><title>s{i + 1} = {v:.3g}'
+                     "</title></rect>")  # fmt: skip
+    t = y(info_min)
+    parts.append(f'<line x1="{x0}" y1="{t:.1f}" x2="{x0 + width}" y2="{t:.1f}" '
+                 'stroke="#c0392b" stroke-dasharray="4 3"/>')  # fmt: skip
+    parts.append(f'<text x="{x0}" y="12" fill="#c0392b">- - - observable above the dashed '
+                 f"line (s = {info_min:g}: the data pin the direction down to its typical size);"
+                 " grey: held at the prior</text>")  # fmt: skip
+    parts.append(f'<text x="4" y="24">{10**hi:.2g}</text><text x="4" y="{_H - 22}">'
+                 f"{10**lo:.2g}</text></svg>")  # fmt: skip
+    return "".join(parts)
+
+
+def calibration_html(result: CalibrationResult, title: str = "recal calibrate") -> str:
+    """A self-contained HTML page for one calibration: coefficients with status and 1-sigma,
+    residual per position before and after, and the observability spectrum."""
+    from recal.observability import INFO_MIN
+
+    esc = html.escape
+    doc = result.to_json_dict()
+    names = result.layout.names
+    terms = result.layout.term_of()
+    sd = np.concatenate([result.uncertainty[n] for n in result.layout.term_slices()])
+    status = np.concatenate([result.status[n] for n in result.layout.term_slices()])
+    rows = []
+    for i, name in enumerate(names):
+        unit = terms[i].unit_of(terms[i].params.index(name.rsplit(".", 1)[1]))
+        state = status[i]
+        if state == "estimated" and result.observability.share[i] < 0.99:
+            state = "estimated (sum only)"
+        sig = f"{sd[i]:.4g}" if np.isfinite(sd[i]) else "-"
+        rows.append(f"<tr><td>{esc(name)}</td><td>{result.theta[i]:.10g}</td><td>{sig}</td>"
+                    f"<td>{esc(state)}</td><td>{esc(unit)}</td></tr>")  # fmt: skip
+    before = result.problem.raw_residuals(result.theta_prior[None])
+    after = result.problem.raw_residuals(result.theta[None])
+    plots = []
+    for n, summary in doc["residuals"].items():
+        series = [("prior", before[n][0], "#c0392b"), ("calibrated", after[n][0], "#2471a3")]
+        plots.append(f"<h3>{esc(n)} residual per position</h3>"
+                     + _bars(series, summary["noise_floor"], summary["unit"]))  # fmt: skip
+    obs = result.observability
+    held = "".join(f"<li>{esc(h)}</li>" for h in obs.held_directions) or "<li>none</li>"
+    notes = "".join(f"<li>{esc(n)}</li>" for n in result.notes)
+    return f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>{esc(title)}</title>
+<style>body{{font-family:sans-serif;max-width:900px;margin:2em auto;color:#222}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
+th{{background:#f4f4f4}}</style></head><body>
+<h1>{esc(title)}</h1>
+<p>{esc(result.method)}, {result.problem.M} positions, latitude {result.problem.latitude_deg:g}
+deg, chi2_red {result.chi2_red:.3g}. Observability: <b>{esc(obs.verdict)}</b> &mdash;
+{esc(obs.message)}</p>
+<p>Prior: {esc(result.prior_source)}. 1-sigma: {esc(doc["uncertainty_kind"])}.</p>
+{f"<ul>{notes}</ul>" if notes else ""}
+<h2>Coefficients</h2>
+<table><tr><th>coefficient</th><th>value</th><th>1-sigma</th><th>status</th><th>unit</th></tr>
+{"".join(rows)}</table>
+{"".join(plots)}
+<h2>What the positions can show</h2>
+<p>Singular values of the whitened Jacobian, each parameter scaled by its typical change.
+Directions held at the prior:</p><ul>{held}</ul>
+{_singular_values(obs.singular_values, obs.rank, INFO_MIN)}
 </body></html>
 """

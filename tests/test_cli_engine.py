@@ -171,3 +171,13 @@ def test_plugin_term_is_fitted_without_touching_the_solvers(positions_csv, tmp_p
     assert "failed to load: RuntimeError: oops" in capsys.readouterr().err
     assert main([*args, "--effects", "+gyro.nonsense"]) == 2
     assert "unknown effect 'gyro.nonsense'" in capsys.readouterr().err
+
+
+def test_calibrate_html_report(positions_csv, tmp_path, capsys):
+    report = tmp_path / "cal.html"
+    assert main(["calibrate", str(positions_csv), "--latitude", "52", "--report", str(report)]) == 0
+    page = report.read_text()
+    assert page.startswith("<!doctype html>") and page.count("<svg") == 4  # 3 invariants + SVD
+    assert "gyro.misalignment.Exz" in page and "estimated (sum only)" in page
+    assert "http" not in page.replace("http://www.w3.org/2000/svg", "")  # self-contained
+    assert (report.stat().st_mode & 0o777) != 0o600  # shareable, not mkstemp's private mode

@@ -121,6 +121,11 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="COEFFS.json",
         help="write the coefficients (usable as the next --prior)",
     )
+    p.add_argument(
+        "--report",
+        metavar="OUT.html",
+        help="write an HTML report: coefficients, residual plots, observability",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -142,6 +147,10 @@ def run(args: argparse.Namespace) -> int:
     doc = result.to_json_dict()
     if args.output:
         atomic_write(args.output, json.dumps(doc["coefficients"], indent=2) + "\n")
+    if args.report:
+        from recal.report import calibration_html
+
+        atomic_write(args.report, calibration_html(result, f"recal calibrate {args.positions}"))
     if args.json:
         print_json(doc)
     else:
