@@ -227,6 +227,29 @@ def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: flo
     return theta
 
 
+#: Position-to-position spread of the gyro outputs, in window-noise units, below which Earth
+#: rate is not visible (a navigation FOG shows thousands, a KVH-class FOG hundreds; the MEMS
+#: recording in ../shared shows 25, from bias instability, not Earth rate).
+MIN_EARTH_RATE_CONTRAST = 50.0
+
+
+def _earth_rate_invisible(positions: Positions) -> str | None:
+    """Why Earth rate cannot calibrate this gyro, or None: the outputs must change with
+    orientation well beyond the window noise."""
+    noise = positions.std_of_mean("gyro")
+    if noise is None or len(positions) < 3:
+        return None
+    spread = np.ptp(positions.gyro, axis=0)
+    contrast = float(np.max(spread / np.maximum(np.median(noise, axis=0), 1e-300)))
+    if contrast >= MIN_EARTH_RATE_CONTRAST:
+        return None
+    return (
+        f"gyro outputs differ between positions by only {contrast:.1f}x the window noise: "
+        f"Earth rate ({OMEGA_IE_DEG_H:.5f} deg/h) is not visible, so it cannot calibrate this "
+        "gyro (typical of MEMS gyros)"
+    )
+
+
 def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...]:
     if sensor in (None, "auto"):
         found = tuple(s for s in ("gyro", "accel") if getattr(positions, f"has_{s}"))
@@ -253,6 +276,13 @@ def calibrate(
     if not -90 <= opt.latitude_deg <= 90:
         raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
     sensors = _resolve_sensors(positions, opt.sensor)
+    notes: list[str] = []
+    problem_gyro = _earth_rate_invisible(positions) if "gyro" in sensors else None
+    if problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
+        sensors = ("accel",)  # the default calibrates what the data can show
+        notes.append(f"gyro not calibrated: {problem_gyro}")
+    elif problem_gyro:
+        raise RecalInputError(problem_gyro + "; use --sensor accel")
     models = build_models(sensors, opt.effects, opt.plugin_terms, opt.t0_c)
     layout = ParameterLayout(models)
     if opt.prior is not None:
@@ -274,7 +304,6 @@ def calibrate(
     report = analyze(problem, theta0, typical)
     if report.verdict == "insufficient":
         raise RecalInputError(f"unusable design: {report.message}")
-    notes: list[str] = []
     evaluations = 0
     mcs = None
     theta = theta0

@@ -261,3 +261,16 @@ def test_existing_output_survives_a_failed_run(shared_data, tmp_path, capsys):
     )
     assert rc == 2 and "line 51176" in err
     assert out.read_text() == "previous\n"
+
+
+def test_mems_gyro_is_not_calibrated_from_earth_rate(xsens_csv, capsys):
+    """The Xsens gyro cannot see Earth rate: refused with --sensor gyro, skipped by default."""
+    out, _ = xsens_csv
+    capsys.readouterr()
+    args = ["calibrate", str(out), "--latitude", str(XSENS_LATITUDE)]
+    assert main([*args, "--sensor", "gyro"]) == 2
+    err = capsys.readouterr().err
+    assert "Earth rate (15.04107 deg/h) is not visible" in err and err.count("\n") == 1
+    assert main([*args, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["sensor"] == "accel" and any("gyro not calibrated" in n for n in doc["notes"])
