@@ -181,3 +181,10 @@ def test_calibrate_html_report(positions_csv, tmp_path, capsys):
     assert "gyro.misalignment.Exz" in page and "estimated (sum only)" in page
     assert "http" not in page.replace("http://www.w3.org/2000/svg", "")  # self-contained
     assert (report.stat().st_mode & 0o777) != 0o600  # shareable, not mkstemp's private mode
+
+
+def test_cli_method_list_matches_the_engine():
+    from recal.calibrate import METHODS
+    from service.cli import calibrate as cli
+
+    assert cli.METHODS == METHODS

@@ -1,14 +1,18 @@
-"""``recal calibrate``: coefficients, status, uncertainty and observability from positions."""
+"""``recal calibrate``: coefficients, status, uncertainty and observability from positions.
+
+The engine (and scipy) is imported when a command runs, not when the parser is built, so
+``recal --help`` and the light subcommands start fast.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from recal.calibrate import METHODS, CalibrationOptions, CalibrationResult, calibrate
 from recal.errors import RecalInputError
 from recal.swarm import SwarmConfig
 from recal.terms import catalogue_terms
@@ -21,6 +25,12 @@ from service.cli.common import (
     print_json,
     progress_bar,
 )
+
+if TYPE_CHECKING:
+    from recal.calibrate import CalibrationOptions, CalibrationResult
+
+#: recal.calibrate.METHODS, repeated here to keep parser construction light (a test checks it)
+METHODS = ("lm", "nafsa", "safsa", "oafsa")
 
 
 def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
@@ -73,6 +83,8 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
+    from recal.calibrate import CalibrationOptions
+
     plugin_terms = [t for path in args.plugin for t in load_plugin(path)]
     terms = {**catalogue_terms(), **{t.name: t for t in plugin_terms}}
     prior = load_coefficients(args.prior, terms) if args.prior else None
@@ -131,6 +143,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run_calibration(args: argparse.Namespace) -> CalibrationResult:
+    from recal.calibrate import calibrate
+
     options = options_from_args(args)
     positions = load_positions(args.positions)
     if options.method == "lm":

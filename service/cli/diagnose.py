@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
-from recal.diagnose import Diagnosis, diagnose
-from recal.report import diagnosis_html
 from service.cli.calibrate import add_calibration_arguments, options_from_args
 from service.cli.common import atomic_write, load_positions, parse_effects, print_json
+
+if TYPE_CHECKING:
+    from recal.diagnose import Diagnosis
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -31,6 +33,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from recal.diagnose import diagnose
+    from recal.report import diagnosis_html
+
     options = options_from_args(args)
     positions = load_positions(args.positions)
     candidates = parse_effects(args.candidates) if args.candidates else None

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import logging
 
-from service.config import load_settings
-
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
@@ -23,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from service.config import load_settings
     from service.daemon import run_daemon
 
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(message)s")
