@@ -346,6 +346,8 @@ def calibrate(
         if problem.noise_known or attempt == 1:
             break
         problem = problem.with_sigma_from_residuals(theta, report.rank)
+        if len(problem.invariant_names) == 1:
+            break  # one invariant: a uniform sigma rescales chi2 but cannot move the optimum
         report = analyze(problem, theta, typical)
         if report.verdict == "insufficient":
             raise RecalInputError(f"unusable design: {report.message}")
