@@ -15,6 +15,20 @@ from recal.calibrate import CalibrationResult
 from recal.diagnose import Diagnosis
 
 _W, _H, _PAD = 720, 220, 40
+_STYLE = (
+    "body{font-family:sans-serif;max-width:900px;margin:2em auto;color:#222}"
+    "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}"
+    "th{background:#f4f4f4}"
+)
+
+
+def _page(title: str, body: str) -> str:
+    """A complete, self-contained HTML page (no external assets)."""
+    t = html.escape(title)
+    return (
+        f'<!doctype html>\n<html><head><meta charset="utf-8"><title>{t}</title>'
+        f"<style>{_STYLE}</style></head><body>\n<h1>{t}</h1>\n{body}</body></html>\n"
+    )
 
 
 def _bars(series: Sequence[tuple[str, np.ndarray, str]], floor: float | None, unit: str) -> str:
@@ -102,13 +116,9 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         if d.suggested_effects
         else f"No candidate effect is significant; chi2_red {doc['chi2_red']:.3g}."
     )
-    return f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>{esc(title)}</title>
-<style>body{{font-family:sans-serif;max-width:900px;margin:2em auto;color:#222}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
-th{{background:#f4f4f4}}</style></head><body>
-<h1>{esc(title)}</h1>
-<p>{suggestion}</p>
+    return _page(
+        title,
+        f"""<p>{suggestion}</p>
 <h2>Invariants against their noise floor</h2>
 <table><tr><th>invariant</th><th>RMS</th><th>noise floor</th><th>ratio</th><th>unit</th>
 <th>worst positions</th></tr>{"".join(rows)}</table>
@@ -119,8 +129,8 @@ above the noise floor that the effect removes.</p>
 <table><tr><th>effect</th><th>delta BIC</th><th>p</th><th>significant</th><th>explained</th>
 <th>physics</th><th>note</th></tr>{"".join(cands)}</table>
 {"".join(plots)}
-</body></html>
-"""
+""",
+    )
 
 
 def _singular_values(s: np.ndarray, names_kept: int, info_min: float) -> str:
@@ -182,13 +192,9 @@ def calibration_html(result: CalibrationResult, title: str = "recal calibrate") 
     obs = result.observability
     held = "".join(f"<li>{esc(h)}</li>" for h in obs.held_directions) or "<li>none</li>"
     notes = "".join(f"<li>{esc(n)}</li>" for n in result.notes)
-    return f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>{esc(title)}</title>
-<style>body{{font-family:sans-serif;max-width:900px;margin:2em auto;color:#222}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
-th{{background:#f4f4f4}}</style></head><body>
-<h1>{esc(title)}</h1>
-<p>{esc(result.method)}, {result.problem.M} positions, latitude {result.problem.latitude_deg:g}
+    return _page(
+        title,
+        f"""<p>{esc(result.method)}, {result.problem.M} positions, latitude {result.problem.latitude_deg:g}
 deg, chi2_red {result.chi2_red:.3g}. Observability: <b>{esc(obs.verdict)}</b> &mdash;
 {esc(obs.message)}</p>
 <p>Prior: {esc(result.prior_source)}. 1-sigma: {esc(doc["uncertainty_kind"])}.</p>
@@ -201,5 +207,5 @@ deg, chi2_red {result.chi2_red:.3g}. Observability: <b>{esc(obs.verdict)}</b> &m
 <p>Singular values of the whitened Jacobian, each parameter scaled by its typical change.
 Directions held at the prior:</p><ul>{held}</ul>
 {_singular_values(obs.singular_values, obs.rank, INFO_MIN)}
-</body></html>
-"""
+""",
+    )

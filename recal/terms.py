@@ -145,13 +145,15 @@ class QuadraticTerm(Term):
 
 # ------------------------------------------------------------------ catalogue effects (section 7)
 @dataclass(frozen=True)
-class TemperatureBiasTerm(Term):
-    """b += k_T (T - T0), per axis."""
+class ColumnBiasTerm(Term):
+    """b += k (c - origin), per axis, for a per-position context column c: temperature
+    (origin T0), temperature rate (the Shupe effect) or session time (a drift)."""
 
-    t0_c: float = 25.0
+    column: str = "temperature_c"
+    origin: float = 0.0
 
     def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
-        return _per_axis(p) * (_session_column(ctx, "temperature_c") - self.t0_c)
+        return _per_axis(p) * (_session_column(ctx, self.column) - self.origin)
 
 
 @dataclass(frozen=True)
@@ -165,14 +167,6 @@ class TemperatureScaleTerm(Term):
 
 
 @dataclass(frozen=True)
-class TemperatureRateBiasTerm(Term):
-    """b += k_dT dT/dt, per axis (Shupe effect)."""
-
-    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
-        return _per_axis(p) * _session_column(ctx, "temperature_rate_c_per_h")
-
-
-@dataclass(frozen=True)
 class GSensitivityTerm(Term):
     """b_g += G f with G a 3x3 matrix (deg/h per g); f is the specific force at the position."""
 
@@ -180,14 +174,6 @@ class GSensitivityTerm(Term):
         G = p.reshape(p.shape[0], 3, 3)
         f = np.asarray(ctx["specific_force_g"], dtype=float)  # (M, 3)
         return np.einsum("pij,mj->pmi", G, f)
-
-
-@dataclass(frozen=True)
-class DriftBiasTerm(Term):
-    """b += d t, per axis, t = session time (h)."""
-
-    def offset(self, p: np.ndarray, ctx: Context) -> np.ndarray:
-        return _per_axis(p) * _session_column(ctx, "time_h")
 
 
 @dataclass(frozen=True)
@@ -292,7 +278,7 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
     """The named physical effects of conventions section 7, keyed by name."""
     g9 = tuple(f"G{r}{c}" for r in AXES for c in AXES)
     terms: list[Term] = [
-        TemperatureBiasTerm(
+        ColumnBiasTerm(
             "gyro.bias_temperature",
             "gyro",
             _xyz("kT"),
@@ -302,7 +288,8 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
             "Bias changes with temperature (coil and source thermal sensitivity).",
             "",
             frozenset({"temperature_c"}),
-            t0_c=t0_c,
+            column="temperature_c",
+            origin=t0_c,
         ),
         TemperatureScaleTerm(
             "gyro.scale_temperature",
@@ -316,7 +303,7 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
             frozenset({"temperature_c"}),
             t0_c=t0_c,
         ),
-        TemperatureRateBiasTerm(
+        ColumnBiasTerm(
             "gyro.bias_temperature_rate",
             "gyro",
             _xyz("kdT"),
@@ -327,6 +314,7 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
             "effect), proportional to dT/dt.",
             "",
             frozenset({"temperature_rate_c_per_h"}),
+            column="temperature_rate_c_per_h",
         ),
         GSensitivityTerm(
             "gyro.g_sensitivity",
@@ -339,7 +327,7 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
             "",
             frozenset({"specific_force_g"}),
         ),
-        DriftBiasTerm(
+        ColumnBiasTerm(
             "gyro.bias_drift",
             "gyro",
             _xyz("d"),
@@ -349,8 +337,9 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
             "Bias drifts linearly over the session (ageing, warm-up).",
             "",
             frozenset({"time_h"}),
+            column="time_h",
         ),
-        TemperatureBiasTerm(
+        ColumnBiasTerm(
             "accel.bias_temperature",
             "accel",
             _xyz("kT"),
@@ -360,7 +349,8 @@ def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
             "Bias changes with temperature (pendulum and electronics).",
             "",
             frozenset({"temperature_c"}),
-            t0_c=t0_c,
+            column="temperature_c",
+            origin=t0_c,
         ),
         TemperatureScaleTerm(
             "accel.scale_temperature",
