@@ -7,7 +7,9 @@ Column names (any order; extra columns are kept and round-trip unchanged):
 
 ``start_s, end_s, samples``; ``gyro_x, gyro_y, gyro_z`` (sensor output units, N_g);
 ``accel_x, accel_y, accel_z`` (output units, N_a); ``temperature_c``;
-``temperature_rate_c_per_h``; optional ``*_std`` per-sample standard deviations.
+``temperature_rate_c_per_h``; optional ``*_std`` per-sample standard deviations and ``*_sem``
+standard errors of the window means (correlated noise included), which take precedence over
+std/sqrt(samples) wherever present.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ GYRO_COLUMNS = tuple(f"gyro_{a}" for a in AXES)
 ACCEL_COLUMNS = tuple(f"accel_{a}" for a in AXES)
 GYRO_STD_COLUMNS = tuple(f"gyro_{a}_std" for a in AXES)
 ACCEL_STD_COLUMNS = tuple(f"accel_{a}_std" for a in AXES)
+GYRO_SEM_COLUMNS = tuple(f"gyro_{a}_sem" for a in AXES)
+ACCEL_SEM_COLUMNS = tuple(f"accel_{a}_sem" for a in AXES)
 TIME_COLUMNS = ("start_s", "end_s", "samples")
 TEMPERATURE_COLUMNS = ("temperature_c", "temperature_rate_c_per_h")
 #: Preferred column order when writing; extra columns follow in their original order.
@@ -37,6 +41,8 @@ CANONICAL_ORDER = (
     + TEMPERATURE_COLUMNS
     + GYRO_STD_COLUMNS
     + ACCEL_STD_COLUMNS
+    + GYRO_SEM_COLUMNS
+    + ACCEL_SEM_COLUMNS
 )
 
 
@@ -96,7 +102,14 @@ class Positions:
     # ---- checks -------------------------------------------------------------------------
     def validate(self) -> None:
         """Raise :class:`RecalInputError` for partial triads and non-finite known cells."""
-        for group in (GYRO_COLUMNS, ACCEL_COLUMNS, GYRO_STD_COLUMNS, ACCEL_STD_COLUMNS):
+        for group in (
+            GYRO_COLUMNS,
+            ACCEL_COLUMNS,
+            GYRO_STD_COLUMNS,
+            ACCEL_STD_COLUMNS,
+            GYRO_SEM_COLUMNS,
+            ACCEL_SEM_COLUMNS,
+        ):
             present = [c for c in group if c in self.columns]
             if present and len(present) != 3:
                 missing = [c for c in group if c not in self.columns]
@@ -114,9 +127,11 @@ class Positions:
                     raise RecalInputError(
                         f"{self.source}: row {row}, column '{name}' is NaN or infinite"
                     )
-        for std_group in (GYRO_STD_COLUMNS, ACCEL_STD_COLUMNS):
+        for std_group in (GYRO_STD_COLUMNS, ACCEL_STD_COLUMNS, GYRO_SEM_COLUMNS, ACCEL_SEM_COLUMNS):
             if std_group[0] in self.columns and (self.stack(std_group) < 0).any():
-                raise RecalInputError(f"{self.source}: negative standard deviation in {std_group}")
+                raise RecalInputError(
+                    f"{self.source}: negative standard deviation in {', '.join(std_group)}"
+                )
 
     # ---- access -------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -151,8 +166,27 @@ class Positions:
     def optional(self, name: str) -> np.ndarray | None:
         return self.columns.get(name)
 
+    def noise_source(self, sensor: str) -> str | None:
+        """Where :meth:`std_of_mean` comes from: "sem columns", "std columns" or None."""
+        sem = GYRO_SEM_COLUMNS if sensor == "gyro" else ACCEL_SEM_COLUMNS
+        std = GYRO_STD_COLUMNS if sensor == "gyro" else ACCEL_STD_COLUMNS
+        if all(n in self.columns for n in sem):
+            return "sem columns"
+        if all(n in self.columns for n in std):
+            return "std columns"
+        return None
+
     def std_of_mean(self, sensor: str) -> np.ndarray | None:
-        """Standard deviation of each window mean, (M, 3) output units, or None without std columns."""
+        """Standard error of each window mean, (M, 3) output units, or None without noise columns.
+
+        The ``*_sem`` columns (correlated noise included) when present, else std/sqrt(samples),
+        which is right for white noise only.
+        """
+        source = self.noise_source(sensor)
+        if source is None:
+            return None
+        if source == "sem columns":
+            return self.stack(GYRO_SEM_COLUMNS if sensor == "gyro" else ACCEL_SEM_COLUMNS)
         names = GYRO_STD_COLUMNS if sensor == "gyro" else ACCEL_STD_COLUMNS
         if not all(n in self.columns for n in names):
             return None
