@@ -42,8 +42,9 @@ from recal.positions import CANONICAL_ORDER, Positions
 
 #: Schema version this code writes; a database with a newer one is refused.
 SCHEMA_VERSION = 1
-#: Positions columns stored as real columns (conventions section 4); others go to ``extra``.
-POSITION_COLUMNS: tuple[str, ...] = CANONICAL_ORDER
+#: Positions columns stored as real columns (conventions section 4, schema version 1); others,
+#: the optional ``*_sem`` columns included, go to ``extra``.
+POSITION_COLUMNS: tuple[str, ...] = tuple(c for c in CANONICAL_ORDER if not c.endswith("_sem"))
 
 
 class StoreError(RuntimeError):
