@@ -23,11 +23,22 @@ nested with ``__``), the TOML file, the defaults below. Example file::
 
 from __future__ import annotations
 
+import ipaddress
 import os
+import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SecretStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -37,8 +48,30 @@ from pydantic_settings import (
 
 from recal.errors import RecalInputError
 
+#: Shortest ``[api] token`` accepted.
+MIN_TOKEN_LENGTH = 16
+_ORIGIN = re.compile(
+    r"https?://[A-Za-z0-9.\-]+(:[0-9]{1,5})?|https?://\[[0-9A-Fa-f:.]+\](:[0-9]{1,5})?"
+)
 
-class DeviceSettings(BaseModel):
+
+def is_loopback(host: str) -> bool:
+    """True when ``host`` only accepts connections from this machine."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name: it may resolve to anything
+        return False
+
+
+class Section(BaseModel):
+    """A configuration section: a key it does not define is an error, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class DeviceSettings(Section):
     url: str = "loop://"
     format: Literal["kvh-a", "kvh-b", "kvh-c"] = "kvh-a"
     baudrate: int = Field(921600, gt=0)
@@ -48,7 +81,7 @@ class DeviceSettings(BaseModel):
     temperature_units: Literal["degC", "centi"] = "degC"
 
 
-class SiteSettings(BaseModel):
+class SiteSettings(Section):
     latitude_deg: float = Field(45.0, ge=-90, le=90)
     height_m: float = 0.0
 
@@ -64,7 +97,7 @@ class DetectorSettings(BaseModel):
     max_gap_frames: int = Field(0, ge=0)
 
 
-class SchedulerSettings(BaseModel):
+class SchedulerSettings(Section):
     min_positions: int = Field(12, ge=1)
     min_new_positions: int = Field(4, ge=1)
     sensor: Literal["gyro", "accel", "both"] = "both"
@@ -73,16 +106,53 @@ class SchedulerSettings(BaseModel):
     use_last_positions: int = Field(200, ge=1)
 
 
-class GateSettings(BaseModel):
+class GateSettings(Section):
     max_chi2_red: float = Field(4.0, gt=0)
     max_change_sigma: float = Field(6.0, gt=0)
     max_relative_scale_sigma: float = Field(2e-3, gt=0)
     allow_jump: bool = False
 
 
-class ApiSettings(BaseModel):
+class ApiSettings(Section):
     host: str = "127.0.0.1"
     port: int = Field(8750, ge=0, le=65535)
+    #: bearer token the write endpoints require (``Authorization: Bearer ...``); without one
+    #: they are refused, and the API may only listen on a loopback address
+    token: SecretStr | None = None
+    #: browser origins (``scheme://host[:port]``) allowed to call the API from their pages
+    allowed_origins: list[str] = []
+    #: open ``/events`` streams at once; more are answered 429
+    max_event_streams: int = Field(32, ge=1, le=10_000)
+
+    @field_validator("token")
+    @classmethod
+    def _strong_token(cls, token: SecretStr | None) -> SecretStr | None:
+        if token is None or token.get_secret_value() == "":  # RECAL_API__TOKEN= means unset
+            return None
+        value = token.get_secret_value()
+        if len(value) < MIN_TOKEN_LENGTH or value != value.strip():
+            raise ValueError(
+                f"must be at least {MIN_TOKEN_LENGTH} characters without surrounding spaces "
+                "(recal demo --serve prints a fresh one)"
+            )
+        return token
+
+    @field_validator("allowed_origins")
+    @classmethod
+    def _origins(cls, origins: list[str]) -> list[str]:
+        for origin in origins:
+            if not _ORIGIN.fullmatch(origin):
+                raise ValueError(f"{origin!r} is not an origin like http://host:port")
+        return [o.lower() for o in origins]
+
+    @model_validator(mode="after")
+    def _loopback_without_token(self) -> ApiSettings:
+        if self.token is None and not is_loopback(self.host):
+            raise ValueError(
+                f"host {self.host} is reachable from other machines: set [api] token "
+                "(or RECAL_API__TOKEN), or listen on 127.0.0.1"
+            )
+        return self
 
 
 class Settings(BaseSettings):
@@ -100,6 +170,13 @@ class Settings(BaseSettings):
     gate: GateSettings = GateSettings()
     api: ApiSettings = ApiSettings()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _no_unknown_keys(cls, data: Any) -> Any:
+        if isinstance(data, Mapping):
+            _check_keys(cls, data, section=None)
+        return data
+
     @classmethod
     def settings_customise_sources(
         cls,
@@ -111,6 +188,38 @@ class Settings(BaseSettings):
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         # keyword arguments > environment > TOML file (``toml_file`` of the model config)
         return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
+
+
+def _check_keys(model: type[BaseModel], data: Mapping[str, Any], section: str | None) -> None:
+    """Raise ValueError naming the first key of ``data`` that ``model`` (or one of its section
+    models, recursively) does not define."""
+    fields = model.model_fields
+    for key, value in data.items():
+        if key not in fields:
+            where = f"{section}: " if section else ""
+            raise ValueError(
+                f"{where}unknown key {key} (known: {', '.join(fields)}){_env_hint(section, key)}"
+            )
+        sub = fields[key].annotation
+        if isinstance(value, Mapping) and isinstance(sub, type) and issubclass(sub, BaseModel):
+            _check_keys(sub, value, f"{section}.{key}" if section else key)
+
+
+def _env_hint(section: str | None, key: str) -> str:
+    """Where an unknown key came from, when it is an environment variable."""
+    parts = [*(section.split(".") if section else []), key]
+    name = "RECAL_" + "__".join(parts)
+    found = [k for k in os.environ if k.upper() == name.upper()]
+    return f" from environment variable {found[0]}" if found else ""
+
+
+def _one_line(err: Any) -> str:
+    """``config: where: message`` for one pydantic error."""
+    where = ".".join(str(x) for x in err["loc"])
+    ctx = err.get("ctx") or {}
+    msg = str(ctx["error"]) if err["type"] == "value_error" and "error" in ctx else err["msg"]
+    msg = " ".join(msg.split())
+    return f"config: {where}: {msg}" if where else f"config: {msg}"
 
 
 def load_settings(path: str | os.PathLike[str] | None = None, **overrides: Any) -> Settings:
@@ -129,8 +238,6 @@ def load_settings(path: str | os.PathLike[str] | None = None, **overrides: Any) 
     try:
         return cls(**overrides)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(x) for x in err["loc"])
-        raise RecalInputError(f"config: {where}: {err['msg']}") from None
+        raise RecalInputError(_one_line(exc.errors()[0])) from None
     except ValueError as exc:  # TOML syntax errors
         raise RecalInputError(f"config {path}: {exc}") from None

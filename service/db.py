@@ -430,6 +430,44 @@ class Store:
                 for r in s.scalars(query)
             ]
 
+    # ---- paged history summaries (what /coefficients/history lists) ----------------------
+    def history_summaries(
+        self, limit: int = 50, before_version: int | None = None
+    ) -> list[dict[str, Any]]:
+        """Calibrations newest first, older than ``before_version`` when given, without their
+        documents: version, time, trigger, method, accepted, reasons, prior version and the key
+        figures (``positions``, ``chi2_red``, ``verdict``, ``sensor``) read inside the database.
+        """
+        doc = CalibrationRow.document
+        query = (
+            select(
+                CalibrationRow.id,
+                CalibrationRow.created_at,
+                CalibrationRow.trigger,
+                CalibrationRow.method,
+                CalibrationRow.accepted,
+                CalibrationRow.reasons,
+                CalibrationRow.prior_version,
+                func.json_array_length(CalibrationRow.positions_used),
+                doc["chi2_red"].as_float(),
+                doc[("observability", "verdict")].as_string(),
+                doc["sensor"].as_string(),
+            )
+            .order_by(CalibrationRow.id.desc())
+            .limit(limit)
+        )
+        if before_version is not None:
+            query = query.where(CalibrationRow.id < before_version)
+        with self._tx() as s:
+            rows = s.execute(query).all()
+        keys = ("version", "created_at", "trigger", "method", "accepted", "reasons",
+                "prior_version", "positions", "chi2_red", "verdict", "sensor")  # fmt: skip
+        out = [dict(zip(keys, row, strict=True)) for row in rows]
+        for item in out:
+            item["created_at"] = _as_utc(item["created_at"])
+            item["reasons"] = list(item["reasons"] or [])
+        return out
+
 
 # ---- helpers ------------------------------------------------------------------------------
 

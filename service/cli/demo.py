@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         site=SiteSettings(latitude_deg=args.latitude),
         detector=DetectorSettings(init_still_s=30.0, min_duration_s=5.0, edge_trim_s=1.0),
         scheduler=SchedulerSettings(min_positions=14, min_new_positions=5, sensor="both"),
-        api={"port": args.port},
+        api={"port": args.port, "token": _api_token()},
     )
     service = build_service(settings)
     t0 = time.monotonic()
@@ -143,11 +143,22 @@ def _print_summary(service, truth) -> None:
     print(f"\npublished: {service.publisher.path}\ndatabase:  {service.settings.database_url}")
 
 
+def _api_token() -> str:
+    """RECAL_API__TOKEN if set, else a fresh random token for this demo."""
+    import os
+    import secrets
+
+    return os.environ.get("RECAL_API__TOKEN") or secrets.token_urlsafe(24)
+
+
 def _serve(service, settings) -> int:
     from service.daemon import make_server
 
     url = f"http://{settings.api.host}:{settings.api.port}"
-    print(f"\nserving the demo at {url}  (try {url}/coefficients, {url}/docs; Ctrl-C stops)",
+    token = settings.api.token.get_secret_value()
+    print(f"\nserving the demo at {url}  (try {url}/coefficients, {url}/docs; Ctrl-C stops)\n"
+          f"API token for write endpoints: {token}\n"
+          f"  curl -X POST -H 'Authorization: Bearer {token}' {url}/recalibrate",
           flush=True)  # fmt: skip
     try:
         make_server(service).run()

@@ -12,7 +12,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="run the onboard service: read the IMU, find static windows, recalibrate, publish",
         description="Run the daemon described by a TOML config (see service/config.py; every "
         "setting can be overridden with RECAL_* environment variables, e.g. "
-        "RECAL_SITE__LATITUDE_DEG=57.7). Stops cleanly on SIGINT/SIGTERM.",
+        "RECAL_SITE__LATITUDE_DEG=57.7; the API's write token is [api] token or RECAL_API__TOKEN). "
+        "Stops cleanly on SIGINT/SIGTERM.",
     )
     p.add_argument("--config", required=True, metavar="FILE.toml")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
@@ -23,6 +24,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from service.config import load_settings
     from service.daemon import run_daemon
+    from service.startup import check_startup
 
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(message)s")
-    return run_daemon(load_settings(args.config))
+    settings = load_settings(args.config)
+    check_startup(settings)  # a setting this machine cannot honour: one line, exit code 2
+    return run_daemon(settings)

@@ -17,10 +17,13 @@ from fastapi.testclient import TestClient
 from recal.coefficients import CoefficientSet
 from recal.simulate import simulate_positions
 from service.api import create_app
+from service.config import ApiSettings
 from service.db import CalibrationRecord, Store
 from service.publish import Publisher
 
 MakeRecord = Callable[..., CalibrationRecord]
+TOKEN = "test-token-0123456789abcdef"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
 @pytest.fixture
@@ -71,7 +74,10 @@ def test_coefficients_current_history_and_version(
 
     history = client.get("/coefficients/history", params={"limit": 1}).json()
     assert [r["version"] for r in history] == [v2] and history[0]["reasons"] == ["too far"]
+    assert "document" not in history[0] and history[0]["chi2_red"] == document["chi2_red"]
     assert len(client.get("/coefficients/history").json()) == 2
+    full = client.get("/coefficients/history", params={"full": True}).json()
+    assert [r["version"] for r in full] == [v2, v1] and full[1]["positions_used"] == [4, 5]
     assert client.get(f"/coefficients/{v2}").json()["accepted"] is False
     missing = client.get("/coefficients/999")
     assert missing.status_code == 404 and missing.json() == {"detail": "no calibration version 999"}
@@ -99,15 +105,16 @@ def test_recalibrate_queues_conflicts_or_is_unavailable(
             raise answer
         return answer
 
-    with TestClient(create_app(sqlite_store, publisher, trigger=trigger)) as client:
-        queued = client.post("/recalibrate")
+    api = ApiSettings(token=TOKEN)
+    with TestClient(create_app(sqlite_store, publisher, trigger=trigger, api=api)) as client:
+        queued = client.post("/recalibrate", headers=AUTH)
         assert queued.status_code == 202 and queued.json() == {"queued": True, "job": 17}
-        busy = client.post("/recalibrate")
+        busy = client.post("/recalibrate", headers=AUTH)
         assert busy.status_code == 409 and "already running" in busy.json()["detail"]
-        refused = client.post("/recalibrate")
+        refused = client.post("/recalibrate", headers=AUTH)
         assert refused.status_code == 409 and refused.json() == {"detail": "shutting down"}
-    without = TestClient(create_app(sqlite_store, publisher)).post("/recalibrate")
-    assert without.status_code == 503
+    without = TestClient(create_app(sqlite_store, publisher, api=api))
+    assert without.post("/recalibrate", headers=AUTH).status_code == 503
 
 
 def test_store_failure_is_503(tmp_path: Path, publisher: Publisher) -> None:
@@ -167,7 +174,7 @@ def parse_sse(text: str) -> list[dict[str, Any]]:
 def live_server(
     sqlite_store: Store, publisher: Publisher
 ) -> Iterator[tuple[str, Publisher, uvicorn.Server]]:
-    app = create_app(sqlite_store, publisher, trigger=lambda: 1)
+    app = create_app(sqlite_store, publisher, trigger=lambda: 1, api=ApiSettings(token=TOKEN))
     config = uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="on")
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, daemon=True)
@@ -186,12 +193,12 @@ def test_real_server_rest_and_sse(
     sqlite_store: Store,
     make_record: MakeRecord,
 ) -> None:
-    base, publisher, _ = live_server
+    base, publisher, server = live_server
     with httpx.Client(base_url=base, timeout=5) as http:
         assert http.get("/coefficients").status_code == 404
         version = sqlite_store.add_calibration(make_record())
         assert http.get("/coefficients").json()["version"] == version
-        assert http.post("/recalibrate").status_code == 202
+        assert http.post("/recalibrate", headers=AUTH).status_code == 202
 
         with http.stream("GET", "/events") as stream:
             assert stream.headers["content-type"].startswith("text/event-stream")
@@ -207,8 +214,8 @@ def test_real_server_rest_and_sse(
             assert block[0] == "event: coefficients"
             assert json.loads(block[1].removeprefix("data: ")) == published
             assert block[2] == f"id: {version}"
-        # The client went away: the server notices and drops the subscription.
-        wait_until(lambda: publisher.subscriber_count == 0)
+        # The client went away: the server notices and frees the stream's slot.
+        wait_until(lambda: server.config.app.state.broadcast.count == 0)
 
 
 def test_real_server_stream_ends_on_shutdown(

@@ -1,0 +1,94 @@
+"""Start-up checks: each setting the daemon cannot use is one line naming the setting to fix.
+
+:func:`check_startup` runs before anything is opened (``recal serve`` calls it after loading
+the configuration); each failure is a :class:`RecalInputError`, so the command exits with code 2
+and one line on stderr instead of a traceback or a misleading message later on.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import socket
+from pathlib import Path
+
+from recal.errors import RecalInputError
+from service.config import Settings
+
+
+def check_startup(settings: Settings) -> None:
+    """Raise :class:`RecalInputError` for the first setting that cannot work on this machine."""
+    check_prior(settings.prior_path)
+    check_database(settings.database_url)
+    check_api_port(settings.api.host, settings.api.port)
+
+
+def check_prior(path: str | None) -> None:
+    if path is not None and not Path(path).is_file():
+        raise RecalInputError(f"prior_path: {path} is not a file")
+
+
+def check_database(url: str, timeout_s: float = 5.0) -> None:
+    """The database opens (a SQLite file's folder exists and is writable; a server answers)."""
+    from service.db import Store, StoreError
+
+    folder = _sqlite_folder(url)
+    if folder is not None:
+        _check_sqlite_folder(folder)
+    try:
+        store = Store(url, connect_timeout_s=timeout_s)
+    except StoreError as exc:
+        raise RecalInputError(f"database_url: {exc}") from None
+    store.close()
+
+
+def _sqlite_folder(url: str) -> Path | None:
+    """The folder a file SQLite URL puts its database in (None for other URLs and :memory:)."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        parsed = make_url(url)
+    except ArgumentError:
+        return None  # the Store names a bad URL
+    if parsed.get_backend_name() != "sqlite" or parsed.database in (None, "", ":memory:"):
+        return None
+    return Path(parsed.database).absolute().parent
+
+
+def _check_sqlite_folder(folder: Path) -> None:
+    if not folder.is_dir():
+        what = "is not a directory" if folder.exists() else "does not exist"
+        raise RecalInputError(
+            f"database_url: the database folder {folder} {what}: create it "
+            f"(mkdir -p {folder}, owned by the service's user) or change database_url"
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise RecalInputError(
+            f"database_url: the database folder {folder} is not writable by this user"
+        )
+
+
+def check_api_port(host: str, port: int) -> None:
+    """The API's address can be bound now (port 0, any free port, always can)."""
+    if port == 0:
+        return
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    try:
+        with socket.socket(family, socket.SOCK_STREAM) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn does
+            sock.bind((host.strip("[]"), port))
+    except socket.gaierror:
+        raise RecalInputError(f"[api] host {host} is not a known address") from None
+    except OSError as exc:
+        raise RecalInputError(_bind_error(host, port, exc)) from None
+
+
+def _bind_error(host: str, port: int, exc: OSError) -> str:
+    if exc.errno == errno.EADDRINUSE:
+        return f"[api] port {port} is already in use on {host}: stop the other program or change [api] port"
+    if exc.errno == errno.EACCES:
+        return f"[api] port {port} needs privileges: use a port above 1023"
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return f"[api] host {host} is not an address of this machine"
+    return f"[api] cannot listen on {host}:{port}: {exc.strerror or exc}"
