@@ -104,6 +104,11 @@ class SchedulerSettings(Section):
     method: Literal["lm", "nafsa", "safsa", "oafsa"] = "lm"
     mc_runs: int = Field(100, ge=1)
     use_last_positions: int = Field(200, ge=1)
+    #: a job running longer is killed and recorded as failed (s)
+    job_timeout_s: float = Field(1800.0, gt=0)
+    #: at shutdown a running job may finish for this long, then it is abandoned (s); keep it
+    #: below the unit's TimeoutStopSec
+    stop_wait_s: float = Field(60.0, ge=0)
 
 
 class GateSettings(Section):

@@ -164,6 +164,22 @@ class EventRow(Base):
     data: Mapped[dict[str, Any] | None]
 
 
+class NoiseFloorRow(Base):
+    """The static detector's noise floor for one device: learned once, refined from windows
+    that passed, reused after a restart (a unit restarted at sea may be moving)."""
+
+    __tablename__ = "noise_floors"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    device: Mapped[str] = mapped_column(Text, index=True)
+    accel: Mapped[float] = mapped_column(Double)
+    gyro: Mapped[float] = mapped_column(Double)
+    window_samples: Mapped[int]
+    source: Mapped[str] = mapped_column(Text)
+    windows: Mapped[int] = mapped_column(default=0)
+
+
 _missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
 assert not _missing, f"PositionRow lacks conventions columns {_missing}"
 
@@ -414,6 +430,54 @@ class Store:
             s.add(row)
             s.flush()
             return row.id
+
+    def last_event(self, kind: str, **data: Any) -> dict[str, Any] | None:
+        """The newest event of ``kind`` whose data holds every ``key=value`` given (or None);
+        looks at the last 1000 events of that kind."""
+        query = select(EventRow).where(EventRow.kind == kind).order_by(EventRow.id.desc())
+        with self._tx() as s:
+            for r in s.scalars(query.limit(1000)):
+                if all((r.data or {}).get(k) == v for k, v in data.items()):
+                    return {"id": r.id, "kind": r.kind, "message": r.message, "data": r.data}
+        return None
+
+    # ---- detector noise floor -----------------------------------------------------------
+    def save_noise_floor(self, device: str, floor: Mapping[str, Any]) -> int:
+        """Record the detector's noise floor for ``device`` (keys accel, gyro, window_samples,
+        source, windows); the newest row is the one in force."""
+        with self._tx(write=True) as s:
+            row = NoiseFloorRow(
+                device=device,
+                accel=float(floor["accel"]),
+                gyro=float(floor["gyro"]),
+                window_samples=int(floor["window_samples"]),
+                source=str(floor["source"]),
+                windows=int(floor.get("windows", 0)),
+            )
+            s.add(row)
+            s.flush()
+            return row.id
+
+    def noise_floor(self, device: str) -> dict[str, Any] | None:
+        """The newest noise floor stored for ``device``, or None."""
+        query = (
+            select(NoiseFloorRow)
+            .where(NoiseFloorRow.device == device)
+            .order_by(NoiseFloorRow.id.desc())
+            .limit(1)
+        )
+        with self._tx() as s:
+            r = s.scalar(query)
+            if r is None:
+                return None
+            return {
+                "accel": r.accel,
+                "gyro": r.gyro,
+                "window_samples": r.window_samples,
+                "source": r.source,
+                "windows": r.windows,
+                "created_at": _as_utc(r.created_at).isoformat(),
+            }
 
     def events(self, limit: int = 100) -> list[dict[str, Any]]:
         """Newest first, as JSON-ready dicts (``created_at`` in ISO 8601 UTC)."""

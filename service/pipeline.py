@@ -10,14 +10,12 @@ the version and publishes it when accepted.
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -28,6 +26,9 @@ from recal.errors import RecalInputError
 from recal.positions import Positions
 from recal.static import DetectorConfig, StaticDetector, windows_to_columns
 from service.config import Settings
+from service.db import StoreError
+from service.events import Events
+from service.jobs import JobEnd, JobRunner
 
 log = logging.getLogger("recal.pipeline")
 
@@ -35,6 +36,10 @@ log = logging.getLogger("recal.pipeline")
 DETECTOR_BLOCK = 4096
 #: ... but never hold frames longer than this (host time, s), so slow streams are not delayed.
 DETECTOR_MAX_WAIT_S = 1.0
+#: Windows kept in memory while the database is unavailable (a week of windows at one a minute).
+SPOOL_MAX = 10_000
+#: Back-off between attempts to store spooled windows, s.
+SPOOL_RETRY_MIN_S, SPOOL_RETRY_MAX_S = 0.5, 30.0
 
 
 def detector_config(settings: Settings) -> DetectorConfig:
@@ -53,7 +58,12 @@ def detector_config(settings: Settings) -> DetectorConfig:
 
 
 class Ingest:
-    """Feeds decoded frames to the static detector and stores each closed window."""
+    """Feeds decoded frames to the static detector and stores each closed window.
+
+    A window that cannot be stored (database outage) waits in a bounded spool, in order, and is
+    retried with exponential back-off from :meth:`poll`; nothing is dropped unless the spool
+    overflows (:data:`SPOOL_MAX` windows, counted in ``windows_dropped``).
+    """
 
     def __init__(
         self,
@@ -61,17 +71,25 @@ class Ingest:
         session_id: int,
         config: DetectorConfig,
         on_positions: Callable[[list[int]], None] | None = None,
+        events: Events | None = None,
     ) -> None:
         self._store = store
         self._session = session_id
         self._detector = StaticDetector(config)
         self._on_positions = on_positions
+        self._events = events or Events(store)
         self._pending: list[Any] = []
         self._count = 0
         self._first_pending = 0.0
         self._lock = threading.Lock()
+        self._spool: deque[dict[str, np.ndarray]] = deque()
+        self._retry_at = 0.0
+        self._backoff_s = SPOOL_RETRY_MIN_S
+        self.store_error: str | None = None
         self.frames = 0
         self.windows = 0
+        self.windows_dropped = 0
+        self.last_detector_run = time.monotonic()
 
     def feed(self, batch: Any) -> list[int]:
         """Take a drivers.FrameBatch; returns the ids of positions stored by this call."""
@@ -88,10 +106,14 @@ class Ingest:
             return self._run(flush=False)
 
     def poll(self) -> list[int]:
-        """Run the detector on frames held longer than DETECTOR_MAX_WAIT_S (call periodically:
-        when the stream pauses, no new batch arrives to push them through)."""
+        """Run the detector on frames held longer than DETECTOR_MAX_WAIT_S, and retry spooled
+        windows when their back-off has passed (call periodically)."""
         with self._lock:
-            return self._run(flush=False) if self._pending and self._stale() else []
+            if self._pending and self._stale():
+                return self._run(flush=False)
+            if self._spool and time.monotonic() >= self._retry_at:
+                return self._drain()
+            return []
 
     def _stale(self) -> bool:
         return time.monotonic() - self._first_pending >= DETECTOR_MAX_WAIT_S
@@ -105,8 +127,29 @@ class Ingest:
     def report(self) -> Any:
         return self._detector.report
 
+    def frames_waiting_s(self) -> float | None:
+        """How long the oldest frame not yet given to the detector has waited (host s)."""
+        with self._lock:
+            return time.monotonic() - self._first_pending if self._pending else None
+
+    def detector_health(self) -> dict[str, Any]:
+        rep = self._detector.report
+        return {
+            "accel_threshold": rep.accel_threshold,
+            "gyro_threshold": rep.gyro_threshold,
+            "threshold_source": getattr(rep, "threshold_source", None),
+            "windows_kept": rep.windows_kept,
+            "rejected": dict(rep.rejected),
+        }
+
+    @property
+    def spooled(self) -> int:
+        """Windows waiting for the database."""
+        return len(self._spool)
+
     def _run(self, flush: bool) -> list[int]:
         windows = []
+        self.last_detector_run = time.monotonic()
         if self._pending:
             from drivers import FrameBatch
 
@@ -117,13 +160,41 @@ class Ingest:
             )
         if flush:
             windows += self._detector.flush()
-        if not windows:
-            return []
-        ids = self._store.add_positions(self._session, windows_to_columns(windows))
-        self.windows += len(ids)
-        if self._on_positions:
-            self._on_positions(ids)
-        return ids
+        if windows:
+            if len(self._spool) >= SPOOL_MAX:
+                self._spool.popleft()
+                self.windows_dropped += 1
+            self._spool.append(windows_to_columns(windows))
+            self._retry_at = 0.0  # new data: try the database now
+        return self._drain() if self._spool and time.monotonic() >= self._retry_at else []
+
+    def _drain(self) -> list[int]:
+        """Store spooled windows in order until the spool is empty or the database fails."""
+        stored: list[int] = []
+        while self._spool:
+            try:
+                ids = self._store.add_positions(self._session, self._spool[0])
+            except StoreError as exc:
+                if self.store_error is None:
+                    self._events.emit("database", f"cannot store windows, spooling them: {exc}",
+                                      level=logging.WARNING)  # fmt: skip
+                self.store_error = str(exc)
+                self._retry_at = time.monotonic() + self._backoff_s
+                self._backoff_s = min(2 * self._backoff_s, SPOOL_RETRY_MAX_S)
+                break
+            self._spool.popleft()
+            stored += ids
+        if stored:
+            if self.store_error is not None:
+                self._events.emit("database", "database back: spooled windows stored",
+                                  {"windows": len(stored)})  # fmt: skip
+            self.store_error = None
+            self._backoff_s = SPOOL_RETRY_MIN_S
+            self.windows += len(stored)
+            log.info("event=window stored %d window(s), ids %s", len(stored), stored)
+            if self._on_positions:
+                self._on_positions(stored)
+        return stored
 
 
 @dataclass(frozen=True)
@@ -153,37 +224,40 @@ def calibration_job(
     return JobOutcome(result.to_json_dict(), decision.accepted, list(decision.reasons))
 
 
-def _worker_init() -> None:
-    # Ctrl-C reaches the whole process group: the daemon decides how jobs end, not the worker
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 class SchedulerBusy(RuntimeError):
     """A recalibration is already running."""
 
 
+class SchedulerRefused(RuntimeError):
+    """A recalibration cannot start now (the message says why and which setting decides)."""
+
+
 class Scheduler:
-    """Starts a recalibration when enough new positions have arrived (or when asked)."""
+    """Starts a recalibration when enough new positions have arrived (or when asked).
+
+    Jobs run in a supervised worker process (:class:`service.jobs.JobRunner`): a job that dies,
+    hangs past ``scheduler.job_timeout_s`` or is cancelled at shutdown is recorded as failed with
+    the reason, and the next trigger works. Every step is an event (log line and store row).
+    """
 
     def __init__(
         self,
         store: Any,
         settings: Settings,
         publisher: Any,
-        executor: Executor | None = None,
+        events: Events | None = None,
+        runner: JobRunner | None = None,
     ) -> None:
         self._store = store
         self._settings = settings
         self._publisher = publisher
-        self._executor = executor or ProcessPoolExecutor(
-            max_workers=1, mp_context=get_context("spawn"), initializer=_worker_init
-        )
-        self._owns_executor = executor is None
+        self._events = events or Events(store)
+        self._runner = runner or JobRunner(timeout_s=settings.scheduler.job_timeout_s)
         self._lock = threading.Lock()
-        self._running: Future | None = None
         self._new_positions = 0
-        self._jobs = 0
+        self._retry = False  # a finished job could not be stored: run again when possible
         self.last_outcome: JobOutcome | None = None
+        self.last_end: JobEnd | None = None
         self._finished = threading.Event()
         self._finished.set()
 
@@ -195,22 +269,35 @@ class Scheduler:
             self._new_positions += len(ids)
             if self._new_positions < s.min_new_positions or self.busy:
                 return
-        if self._store.count_positions() >= s.min_positions:
-            try:
-                self.trigger("auto")
-            except SchedulerBusy:
-                pass
+        self._try("auto")
+
+    def _try(self, trigger: str) -> int | None:
+        try:
+            return self.trigger(trigger)
+        except (SchedulerBusy, SchedulerRefused, StoreError):
+            return None
 
     @property
     def busy(self) -> bool:
-        return self._running is not None and not self._running.done()
+        return self._runner.busy
 
     def trigger(self, trigger: str = "manual") -> int:
-        """Queue a recalibration now; returns the job number. Raises SchedulerBusy."""
+        """Start a recalibration now; returns the job number.
+
+        Raises SchedulerBusy (a job runs), SchedulerRefused (too few positions) or StoreError.
+        """
         s = self._settings
         with self._lock:
             if self.busy:
                 raise SchedulerBusy("a recalibration is already running")
+            stored = self._store.count_positions()
+            if trigger != "manual" and stored < s.scheduler.min_positions:
+                raise SchedulerRefused(
+                    f"only {stored} positions are stored; an automatic recalibration waits for "
+                    f"{s.scheduler.min_positions} (scheduler.min_positions)"
+                )
+            if stored == 0:
+                raise SchedulerRefused("no positions are stored yet: nothing to calibrate from")
             positions, ids = self._store.positions()
             keep = s.scheduler.use_last_positions
             if len(ids) > keep:  # the most recent windows describe the unit as it is now
@@ -224,29 +311,78 @@ class Scheduler:
                 height_m=s.site.height_m,
                 prior=self._prior(previous),
             )
-            self._jobs += 1
-            self._new_positions = 0
+            args = (positions.columns, options, previous, s.gate.model_dump())
+            method = options.method
             self._finished.clear()
-            job = self._jobs
-            fut = self._executor.submit(
-                calibration_job, positions.columns, options, previous, s.gate.model_dump()
-            )
-            self._running = fut
-            fut.add_done_callback(
-                lambda f: self._finish(f, job, trigger, ids, previous, options.method)
-            )
-            self._store.add_event("job", f"recalibration {job} started ({trigger})",
-                                  {"positions": len(ids)})  # fmt: skip
-            return job
+            try:
+                job = self._runner.submit(
+                    calibration_job,
+                    args,
+                    lambda end: self._finish(end, trigger, ids, previous, method),
+                )
+            except RuntimeError as exc:
+                self._finished.set()
+                raise SchedulerBusy(str(exc)) from None
+            self._new_positions = 0
+            self._retry = False
+        self._events.emit("job", f"recalibration {job} started ({trigger})",
+                          {"job": job, "state": "started", "trigger": trigger,
+                           "positions": len(ids)})  # fmt: skip
+        return job
+
+    def resume(self) -> int | None:
+        """At start: run the job a restart interrupted, or the one new positions justify."""
+        last_start = self._store.last_event("job", state="started")
+        last_end = self._store.last_event("job", state="ended")
+        interrupted = last_start is not None and (
+            last_end is None or last_end["id"] < last_start["id"]
+        )
+        latest = self._store.history(limit=1)
+        seen = max(latest[0].positions_used, default=0) if latest else 0
+        _, new_ids = self._store.positions(since_id=seen, limit=100_000)
+        due = len(new_ids) >= self._settings.scheduler.min_new_positions
+        if not (interrupted or due):
+            return None
+        why = "a job was interrupted by the restart" if interrupted else "new positions"
+        job = self._try("resume")
+        if job is not None:
+            log.info("resumed: %s", why)
+        return job
+
+    def tick(self) -> None:
+        """Periodic duties (the daemon calls this every second or so): retry a job whose result
+        could not be stored."""
+        if self._retry and not self.busy:
+            self._try("retry")
 
     def wait(self, timeout: float | None = None) -> JobOutcome | None:
         """Block until the running job (if any) is finished, stored and published."""
         self._finished.wait(timeout)
         return self.last_outcome
 
-    def shutdown(self) -> None:
-        if self._owns_executor:
-            self._executor.shutdown(wait=True, cancel_futures=True)
+    def shutdown(self, wait_s: float = 0.0) -> None:
+        """Let a running job finish for up to ``wait_s`` s, then abandon it (recorded)."""
+        self._runner.shutdown(wait_s)
+
+    def health(self) -> dict[str, Any]:
+        end = self.last_end
+        return {
+            "busy": self.busy,
+            "running_for_s": self._runner.running_for_s(),
+            "supervisor_alive": self._runner.alive,
+            "last_job": None
+            if end is None
+            else {
+                "job": end.job,
+                "status": end.status,
+                "message": end.message,
+                "duration_s": round(end.duration_s, 3),
+            },  # fmt: skip
+        }
+
+    @property
+    def alive(self) -> bool:
+        return self._runner.alive
 
     # -- internals ------------------------------------------------------------------------
     def _prior(self, previous: Any) -> CoefficientSet | None:
@@ -260,35 +396,41 @@ class Scheduler:
             return load_coefficients(self._settings.prior_path)
         return None
 
-    def _finish(self, fut: Future, job: int, trigger: str, ids: list[int], previous: Any,
+    def _finish(self, end: JobEnd, trigger: str, ids: list[int], previous: Any,
                 method: str) -> None:  # fmt: skip
-        try:
-            outcome: JobOutcome = fut.result()
-        except Exception as exc:  # noqa: BLE001 - a crashed job must not take the daemon down
-            log.exception("recalibration %d crashed", job)
-            outcome = JobOutcome(None, False, [f"internal error: {exc}"], error=str(exc))
+        """Called once per job by the runner's supervisor thread."""
+        self.last_end = end
+        if end.ok:
+            outcome: JobOutcome = end.result
+        else:
+            outcome = JobOutcome(None, False, [end.message], error=end.message)
         self.last_outcome = outcome
         chained = False
         try:
-            self._store_outcome(outcome, job, trigger, ids, previous, method)
+            self._store_outcome(outcome, end, trigger, ids, previous, method)
             # positions that arrived while this job ran may already justify the next one;
             # started before "finished" is signalled, so a waiter never sees a false idle
             if self._new_positions >= self._settings.scheduler.min_new_positions:
-                try:
-                    self.trigger("auto")
-                    chained = True
-                except RuntimeError:  # busy, or the executor is shutting down
-                    pass
+                chained = self._try("auto") is not None
+        except StoreError as exc:
+            self._retry = True
+            self._events.emit("job", f"recalibration {end.job} finished but could not be "
+                              f"stored ({exc}); it will run again", level=logging.ERROR)  # fmt: skip
         finally:
             if not chained:
                 self._finished.set()
 
-    def _store_outcome(self, outcome: JobOutcome, job: int, trigger: str, ids: list[int],
+    def _store_outcome(self, outcome: JobOutcome, end: JobEnd, trigger: str, ids: list[int],
                        previous: Any, method: str) -> None:  # fmt: skip
         from service.db import CalibrationRecord
 
+        job = end.job
+        ended = {"job": job, "state": "ended", "status": end.status,
+                 "duration_s": round(end.duration_s, 3)}  # fmt: skip
         if outcome.document is None:
-            self._store.add_event("job", f"recalibration {job} not possible: {outcome.error}")
+            what = "not possible" if end.ok else f"failed ({end.status})"
+            self._events.emit("job", f"recalibration {job} {what}: {outcome.error}", ended,
+                              level=logging.WARNING)  # fmt: skip
             return
         record = CalibrationRecord(
             version=None,
@@ -303,6 +445,11 @@ class Scheduler:
         )
         version = self._store.add_calibration(record)
         verdict = "accepted" if outcome.accepted else "rejected: " + "; ".join(outcome.reasons)
-        self._store.add_event("calibration", f"version {version} {verdict}")
+        self._events.emit("calibration", f"version {version} {verdict}",
+                          {"version": version, "accepted": outcome.accepted,
+                           "chi2_red": outcome.document.get("chi2_red")},
+                          level=logging.INFO if outcome.accepted else logging.WARNING)  # fmt: skip
+        self._events.emit("job", f"recalibration {job} ended: version {version}",
+                          ended | {"version": version})  # fmt: skip
         if outcome.accepted:
-            self._publisher.publish(self._store.calibration(version))
+            self._publisher.sync(self._store.current())

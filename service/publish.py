@@ -4,11 +4,18 @@ The navigation computer reads the file (always complete: written to a temporary 
 folder, fsynced, then renamed over the old one) or listens on the SSE endpoint, which drains a
 :class:`Subscription` queue. A slow subscriber never blocks :meth:`Publisher.publish`: its queue
 is bounded and loses its oldest item when full, and the loss is counted.
+
+The file follows the database: :meth:`Publisher.sync` (called at start, after every acceptance
+and periodically by the daemon) rewrites it whenever it differs from the current accepted
+version: a crash between the commit and the write, a deleted or edited file, or a write that
+failed (read-only mount, full disk) and is retried. A failure is kept in ``error`` for
+``/health``; it never raises into the pipeline.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import queue
 import tempfile
@@ -19,6 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from service.db import CalibrationRecord
+
+log = logging.getLogger("recal.publish")
 
 
 def payload(record: CalibrationRecord) -> dict[str, Any]:
@@ -51,6 +60,24 @@ def write_json_atomic(path: Path, obj: Any) -> None:
             os.unlink(tmp)
         raise
     _fsync_dir(path.parent)  # make the rename itself survive a power cut
+
+
+def check_publish_path(path: Path) -> None:
+    """Raise a one-line :class:`RecalInputError` unless ``path`` can be written: its folder is
+    created if missing, must be a writable directory, and ``path`` must not be a directory."""
+    from recal.errors import RecalInputError
+
+    folder = path.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecalInputError(
+            f"publish_path {path}: cannot create its folder {folder}: {exc.strerror or exc}"
+        ) from None
+    if path.is_dir():
+        raise RecalInputError(f"publish_path {path} is a directory; give a file name")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise RecalInputError(f"publish_path {path}: the folder {folder} is not writable")
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -97,30 +124,66 @@ class Publisher:
 
     def __init__(self, path: str | os.PathLike[str], queue_size: int = 64) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        check_publish_path(self.path)
         self.queue_size = queue_size
         self._lock = threading.Lock()
         self._subscribers: list[Subscription] = []
         self._latest: dict[str, Any] | None = None
         self._closed = False
         self._dropped = 0
+        self.error: str | None = None  # the last failed write, until one succeeds
+        self.writes = 0
+
+    def sync(self, record: CalibrationRecord | None) -> bool:
+        """Make the file (and the subscribers' latest) equal ``record``, the current accepted
+        version. Returns True when the file was (re)written; a failure is kept in ``error``."""
+        if record is None:
+            return False
+        obj = payload(record)
+        try:
+            on_disk = json.loads(self.path.read_text())
+        except (OSError, ValueError):
+            on_disk = None
+        if on_disk == obj and self.error is None:
+            with self._lock:
+                self._latest = obj
+            return False
+        try:
+            self.publish(record)
+        except OSError as exc:
+            first = self.error is None
+            self.error = f"cannot write {self.path}: {exc.strerror or exc}"
+            if first:
+                log.error("event=publish %s (version %s)", self.error, record.version)
+            return False
+        if self.error is not None:
+            log.info("event=publish %s written again after: %s", self.path, self.error)
+        self.error = None
+        return True
 
     def publish(self, record: CalibrationRecord) -> dict[str, Any]:
         """Write the file, then hand the same object to every subscriber; returns it."""
         obj = payload(record)
         with self._lock:
             write_json_atomic(self.path, obj)
+            self.writes += 1
+            new = self._latest is None or self._latest.get("version") != obj["version"]
             self._latest = obj
-            self._dropped += sum(sub.offer(obj) for sub in self._subscribers)
+            if new:  # a rewrite of the same version is not news to subscribers
+                self._dropped += sum(sub.offer(obj) for sub in self._subscribers)
+        log.info("event=publish version %s written to %s", obj["version"], self.path)
         return obj
 
-    def subscribe(self, maxsize: int | None = None) -> Subscription:
-        """A new queue receiving every later publication (just ``None`` once closed)."""
+    def subscribe(self, maxsize: int | None = None, current: bool = True) -> Subscription:
+        """A new queue receiving the current version first (``current``), then every later
+        publication (just ``None`` once closed)."""
         sub = Subscription(maxsize or self.queue_size)
         with self._lock:
             if self._closed:
                 sub.offer(None)
             else:
+                if current and self._latest is not None:
+                    sub.offer(self._latest)
                 self._subscribers.append(sub)
         return sub
 

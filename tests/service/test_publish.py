@@ -48,6 +48,7 @@ def test_a_failed_write_keeps_the_old_file(
         pub.publish(make_record(version=2))
     assert pub.path.read_bytes() == before
     assert os.listdir(tmp_path) == ["coefficients.json"]
+    assert sub.get_nowait()["version"] == 1  # a new subscriber first gets the current version
     assert sub.empty()  # nothing announced that is not on disk
     assert pub.latest is not None and pub.latest["version"] == 1
 
@@ -110,3 +111,48 @@ def test_unsubscribe_and_close(tmp_path: Path, make_record: MakeRecord) -> None:
     assert json.loads(pub.path.read_text())["version"] == 2
     with pytest.raises(queue.Empty):
         late.get_nowait()
+
+
+def test_sync_makes_the_file_follow_the_database(tmp_path: Path, make_record: MakeRecord) -> None:
+    pub = Publisher(tmp_path / "c.json")
+    assert pub.sync(None) is False and not pub.path.exists()  # nothing accepted yet
+    record = make_record(version=3)
+    assert pub.sync(record) is True  # e.g. a crash between commit and write
+    assert json.loads(pub.path.read_text())["version"] == 3
+    assert pub.sync(record) is False  # already equal: nothing written
+    pub.path.write_text("{}")  # edited by hand, or truncated
+    assert pub.sync(record) is True
+    assert json.loads(pub.path.read_text())["version"] == 3
+    pub.path.unlink()
+    assert pub.sync(record) is True and pub.path.exists()
+
+
+def test_a_failing_sync_is_recorded_and_retried(tmp_path: Path, make_record: MakeRecord) -> None:
+    pub = Publisher(tmp_path / "c.json")
+    pub.path.mkdir()  # the write cannot replace a directory
+    assert pub.sync(make_record(version=1)) is False
+    assert pub.error is not None and "cannot write" in pub.error
+    pub.path.rmdir()
+    assert pub.sync(make_record(version=1)) is True and pub.error is None
+
+
+def test_new_subscribers_first_get_the_current_version(
+    tmp_path: Path, make_record: MakeRecord
+) -> None:
+    pub = Publisher(tmp_path / "c.json")
+    pub.publish(make_record(version=4))
+    sub = pub.subscribe()
+    assert sub.get_nowait()["version"] == 4
+    pub.publish(make_record(version=4))  # rewritten, same version: not news
+    assert sub.empty()
+    assert pub.subscribe(current=False).empty()
+
+
+@pytest.mark.parametrize("bad", ["dir", "under_file"])
+def test_unusable_publish_path_is_one_line_at_start(tmp_path: Path, bad: str) -> None:
+    from recal.errors import RecalInputError
+
+    (tmp_path / "file").write_text("x")
+    path = tmp_path if bad == "dir" else tmp_path / "file" / "c.json"
+    with pytest.raises(RecalInputError, match="publish_path"):
+        Publisher(path)

@@ -1,0 +1,261 @@
+"""Supervised jobs: each recalibration runs in a fresh worker process, watched from one thread.
+
+A process pool was the first design, and it failed the way a vessel fails it: a worker killed by
+the OOM killer left either a future that never completed or a pool that refused all later work,
+and nothing noticed. Here every job gets its own spawned process and a pipe for its result. One
+long-lived supervisor thread starts the processes and watches them, and reports exactly one
+:class:`JobEnd` per job:
+
+* the result arrived: ``ok``;
+* the function raised: ``error`` with the exception in one line;
+* the process died without a result (killed, out of memory, crashed): ``died`` with the exit
+  code or signal;
+* it ran past ``timeout_s``: it is killed (its whole process group) and reported ``timeout``;
+* :meth:`JobRunner.cancel` (shutdown): killed and reported ``cancelled``.
+
+The worker ignores SIGINT and SIGTERM (a Ctrl-C or a ``systemctl stop`` reaches the whole
+process group; the daemon decides how a job ends) and, on Linux, asks the kernel to kill it when
+the daemon dies (``PR_SET_PDEATHSIG``), so no worker outlives a ``kill -9`` of the daemon. The
+kernel ties that signal to the *thread* that started the process, which is why only the
+supervisor thread, which lives as long as the runner, ever starts one.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import multiprocessing
+import os
+import queue
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+log = logging.getLogger("recal.jobs")
+
+_PR_SET_PDEATHSIG = 1
+#: How often the supervisor looks at a running job, s (also the latency of a result).
+POLL_S = 0.1
+
+
+@dataclass(frozen=True)
+class JobEnd:
+    """How a job ended. ``status``: ok, error, died, timeout or cancelled."""
+
+    job: int
+    status: str
+    result: Any = None
+    message: str = ""
+    duration_s: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+def die_with_parent(sig: int = signal.SIGKILL) -> None:
+    """Ask Linux to send ``sig`` to this process when its parent (thread) ends; no-op elsewhere.
+
+    Called first thing in a child process. If the parent is already gone (the race between
+    fork and this call), exit at once.
+    """
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+    except (OSError, AttributeError):  # not Linux: the daemon then relies on its own cleanup
+        return
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+def _worker_main(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+    die_with_parent()
+    os.setpgid(0, 0)  # the supervisor kills the job's whole group (swarm children included)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        result = fn(*args)
+    except BaseException as exc:  # noqa: BLE001 - reported to the daemon, not raised here
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        conn.send(("error", f"{type(exc).__name__}: {first}".rstrip(": ")))
+    else:
+        conn.send(("ok", result))
+    conn.close()
+
+
+@dataclass
+class _Running:
+    job: int
+    process: Any
+    conn: Any
+    started: float
+    deadline: float
+    on_end: Callable[[JobEnd], None]
+
+
+class JobRunner:
+    """Runs one job at a time in its own process; see the module docstring."""
+
+    def __init__(self, timeout_s: float = 1800.0, start_method: str = "spawn") -> None:
+        self.timeout_s = float(timeout_s)
+        self._ctx = multiprocessing.get_context(start_method)
+        self._requests: queue.Queue[tuple[int, Callable[..., Any], tuple, Callable] | None] = (
+            queue.Queue()
+        )
+        self._lock = threading.Lock()
+        self._running: _Running | None = None
+        self._queued = 0  # submitted, not yet started
+        self._cancel: str | None = None
+        self._jobs = 0
+        self._closed = False
+        self.last_beat = time.monotonic()  # the supervisor's heartbeat (health, watchdog)
+        self._thread = threading.Thread(target=self._supervise, name="job-supervisor", daemon=True)
+        self._thread.start()
+
+    # ---- public ---------------------------------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        with self._lock:
+            return self._running is not None or self._queued > 0
+
+    @property
+    def alive(self) -> bool:
+        """The supervisor thread runs and has looked at its job within the last few seconds."""
+        return self._thread.is_alive() and time.monotonic() - self.last_beat < 5.0
+
+    def running_for_s(self) -> float | None:
+        with self._lock:
+            r = self._running
+            return None if r is None else time.monotonic() - r.started
+
+    def submit(
+        self, fn: Callable[..., Any], args: tuple[Any, ...], on_end: Callable[[JobEnd], None]
+    ) -> int:
+        """Start ``fn(*args)`` in a new worker process; ``on_end`` is called once, from the
+        supervisor thread, when it ends. Raises RuntimeError when busy or closed."""
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the job runner is shut down")
+            if self._running is not None or self._queued:
+                raise RuntimeError("a job is already running")
+            self._jobs += 1
+            self._queued += 1
+            self._cancel = None
+            job = self._jobs
+        self._requests.put((job, fn, args, on_end))
+        return job
+
+    def cancel(self, reason: str = "cancelled") -> None:
+        """Kill the running job (if any); it ends with status ``cancelled``."""
+        with self._lock:
+            self._cancel = reason
+
+    def shutdown(self, wait_s: float = 0.0) -> None:
+        """Let the running job finish for up to ``wait_s``, then kill it; stop the supervisor."""
+        deadline = time.monotonic() + max(0.0, wait_s)
+        while self.busy and time.monotonic() < deadline:
+            time.sleep(POLL_S)
+        with self._lock:
+            self._closed = True
+            if self._running is not None or self._queued:
+                self._cancel = "the service stopped before the job finished"
+        self._requests.put(None)
+        self._thread.join(timeout=10)
+
+    # ---- supervisor thread ------------------------------------------------------------------
+    def _supervise(self) -> None:
+        while True:
+            self.last_beat = time.monotonic()
+            r = self._running
+            if r is None:
+                try:
+                    item = self._requests.get(timeout=1.0)
+                except queue.Empty:
+                    continue
+                if item is None:
+                    return
+                self._start(*item)
+                continue
+            end = self._check(r)
+            if end is not None:
+                with self._lock:
+                    self._running = None
+                try:
+                    r.on_end(end)
+                except Exception:  # noqa: BLE001 - the supervisor must outlive a bad callback
+                    log.exception("job %d: handling its end failed", r.job)
+
+    def _start(self, job: int, fn: Callable[..., Any], args: tuple, on_end: Callable) -> None:
+        now = time.monotonic()
+        with self._lock:
+            self._queued -= 1
+            cancelled = self._cancel
+        if cancelled:
+            on_end(JobEnd(job, "cancelled", message=cancelled))
+            return
+        try:
+            recv, send = self._ctx.Pipe(duplex=False)
+            process = self._ctx.Process(
+                target=_worker_main, args=(send, fn, args), name=f"recal-job-{job}"
+            )
+            process.start()
+            send.close()
+        except Exception as exc:  # noqa: BLE001 - e.g. out of memory or process limits
+            on_end(JobEnd(job, "died", message=f"cannot start a worker: {exc}"))
+            return
+        with self._lock:
+            self._running = _Running(job, process, recv, now, now + self.timeout_s, on_end)
+
+    def _check(self, r: _Running) -> JobEnd | None:
+        elapsed = time.monotonic() - r.started
+        if r.conn.poll(POLL_S):
+            try:
+                status, value = r.conn.recv()
+            except (EOFError, OSError):  # the pipe closed: the worker died before answering
+                return self._died(r, elapsed)
+            except Exception as exc:  # noqa: BLE001 - a result that cannot be unpickled
+                self._reap(r)
+                return JobEnd(r.job, "error", message=f"unreadable job result: {exc}",
+                              duration_s=elapsed)  # fmt: skip
+            self._reap(r, grace_s=5.0)
+            if status == "ok":
+                return JobEnd(r.job, "ok", result=value, duration_s=elapsed)
+            return JobEnd(r.job, "error", message=str(value), duration_s=elapsed)
+        if not r.process.is_alive():
+            return self._died(r, elapsed)
+        with self._lock:
+            cancel = self._cancel
+        if cancel:
+            self._reap(r)
+            return JobEnd(r.job, "cancelled", message=cancel, duration_s=elapsed)
+        if time.monotonic() > r.deadline:
+            self._reap(r)
+            return JobEnd(r.job, "timeout", duration_s=elapsed,
+                          message=f"ran longer than the job time limit ({self.timeout_s:g} s)")  # fmt: skip
+        return None
+
+    def _died(self, r: _Running, elapsed: float) -> JobEnd:
+        r.process.join(5.0)
+        code = r.process.exitcode
+        self._reap(r)
+        how = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+        if code == -signal.SIGKILL:
+            how += ": killed, by the kernel's out-of-memory killer or by an operator"
+        return JobEnd(r.job, "died", message=f"the worker process died ({how})",
+                      duration_s=elapsed)  # fmt: skip
+
+    def _reap(self, r: _Running, grace_s: float = 0.0) -> None:
+        """Make sure the worker and its process group are gone, and close the pipe."""
+        r.process.join(grace_s)
+        pid = r.process.pid
+        if pid is not None:
+            try:
+                os.killpg(pid, signal.SIGKILL)  # the worker leads its group (swarm children)
+            except (ProcessLookupError, PermissionError):
+                pass
+        r.process.join(5.0)
+        r.conn.close()
