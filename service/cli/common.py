@@ -101,8 +101,11 @@ def parse_effects(text: str | None) -> list[str]:
     return [e.strip().lstrip("+") for e in text.split(",") if e.strip()]
 
 
-def progress_bar(total: int, desc: str) -> Any:
-    """A tqdm bar on stderr, shown only on a terminal; returns an object with update()/close()."""
+def progress_bar(total: int, desc: str, unit: str = "run") -> Any:
+    """A tqdm bar on stderr, shown only on a terminal; returns an object with update()/close().
+
+    ``unit="B"`` counts bytes (shown as kB, MB, ... per second).
+    """
     from tqdm import tqdm
 
     return tqdm(
@@ -110,7 +113,9 @@ def progress_bar(total: int, desc: str) -> Any:
         desc=desc,
         file=sys.stderr,
         disable=not sys.stderr.isatty(),
-        unit="run",
+        unit=unit,
+        unit_scale=unit == "B",
+        unit_divisor=1024 if unit == "B" else 1000,
         leave=False,
     )
 

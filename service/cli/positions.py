@@ -1,9 +1,13 @@
 """``recal positions``: find the static windows of a recording and write the positions CSV.
 
-Inputs: a KVH capture (``--format kvh-a|kvh-b|kvh-c``, decoded by ``drivers.decode_bulk``; gyro in
-deg/h, accel in g) or an Xsens text pair (``--format xsens-text``: the acc file and the gyro file,
-raw counts). The detector is ``recal.static``; the CSV columns are conventions section 4 plus
-``frames_lost`` and ``frames_invalid``.
+Inputs (:mod:`service.cli.recording`, all streamed in chunks: memory does not grow with the
+recording's length): a KVH capture (``--format kvh-a|kvh-b|kvh-c``, decoded by
+``drivers.StreamDecoder``; gyro in deg/h, accel in g), an Xsens text pair (``--format
+xsens-text``: the acc file and the gyro file, raw counts) or a CSV log (``--format csv``,
+conventions section 9, output units). The detector is ``recal.static``; the CSV columns are
+conventions section 4 plus ``frames_lost`` and ``frames_invalid``.
+
+Only argparse is imported to build the parser; numpy, recal and drivers are imported by run().
 """
 
 from __future__ import annotations
@@ -12,16 +16,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.static import DetectorConfig, StaticDetector, Window, windows_to_columns
-from service.cli.common import atomic_write, progress_bar, read_bytes
-
-FORMATS = ("kvh-a", "kvh-b", "kvh-c", "xsens-text")
-_CHUNK = 1 << 16  # frames per detector feed: the unit of the progress bar
-_PROGRESS_MIN_FRAMES = 4 * _CHUNK  # below this a bar would only flicker
+FORMATS = ("kvh-a", "kvh-b", "kvh-c", "xsens-text", "csv")
+_PROGRESS_MIN_BYTES = 16 << 20  # below this a bar would only flicker
+#: Frames per detector feed, counted from the first frame: recal.static.detect_static's slices,
+#: so the stream gives the bulk path's windows to the last bit (any chunking agrees to 1e-15).
+DETECTOR_BLOCK = 1 << 16
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -30,8 +29,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="find the static windows of a recording and write the positions CSV",
         description="Find the static windows of an IMU recording (moving variance of accel and "
         "gyro below a threshold, edges trimmed) and write one row per window: start/end, "
-        "samples, mean and standard deviation per axis, temperature and its slope. Thresholds "
-        "are given, or learned from a still period at the start (--init-still).",
+        "samples, mean and standard deviation per axis, temperature and its slope. By default "
+        "the thresholds are a multiple of the recording's own noise floor, learned in a first "
+        "pass over it; they can also be given, or learned from a still period at the start "
+        "(--init-still). The input is streamed: memory does not grow with its length.",
     )
     p.add_argument(
         "inputs",
@@ -39,7 +40,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="INPUT",
         help="KVH: one capture file, or the consecutive parts of one capture in order (joined "
         "as one byte stream); xsens-text: the acc file and the gyro file (told apart by "
-        "'acc'/'gyro' in their names, else in that order)",
+        "'acc'/'gyro' in their names, else in that order); csv: one log with a header row "
+        "(time_s, gyro_x..gyro_z, accel_x..accel_z, optional temperature_c; either triad may "
+        "be missing)",
     )
     p.add_argument("--format", required=True, choices=FORMATS, help="input format")
     p.add_argument(
@@ -47,7 +50,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=float,
         metavar="HZ",
         help="sample rate; KVH: the device data rate (default 1000, turns delta angles into "
-        "rates); xsens-text: overrides the rate derived from the time column",
+        "rates); xsens-text, csv: overrides the rate derived from the time column (csv "
+        "without a time_s column: time = row / HZ)",
+    )
+    p.add_argument(
+        "--columns",
+        metavar="NEW=OLD,...",
+        help="csv: the file's own column names for the standard ones, e.g. "
+        "accel_x=acc_x,accel_y=acc_y,accel_z=acc_z,time_s=t",
     )
     p.add_argument("-o", "--output", required=True, metavar="POSITIONS.csv")
     k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
@@ -67,7 +77,6 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="whole degC (default) or hundredths (C_100)",
     )
     d = p.add_argument_group("detector")
-    defaults = DetectorConfig(accel_threshold=0.0, gyro_threshold=0.0)
     d.add_argument(
         "--init-still",
         type=float,
@@ -77,10 +86,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     d.add_argument(
         "--threshold-k",
         type=float,
-        default=defaults.threshold_k,
         metavar="K",
-        help="learned threshold = K x the still period's median moving variance "
-        "(default %(default)s)",
+        help="learned threshold = K x the noise floor, or with --init-still K x the still "
+        "period's median moving variance (default 5)",
     )
     d.add_argument(
         "--accel-threshold",
@@ -97,31 +105,27 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     d.add_argument(
         "--window",
         type=float,
-        default=defaults.window_s,
         metavar="S",
-        help="moving-variance window (default %(default)s s)",
+        help="moving-variance window (default about 100 frames, between 0.1 and 1 s)",
     )
     d.add_argument(
         "--min-duration",
         type=float,
-        default=defaults.min_duration_s,
         metavar="S",
-        help="shortest window kept, after trimming (default %(default)s s)",
+        help="shortest window kept, after trimming (default: the moving window, at least 0.5 s)",
     )
     d.add_argument(
         "--edge-trim",
         type=float,
-        default=defaults.edge_trim_s,
         metavar="S",
-        help="dropped at both ends of each window (default %(default)s s)",
+        help="dropped at both ends of each window (default half the moving window)",
     )
     d.add_argument(
         "--max-gap",
         type=int,
-        default=defaults.max_gap_frames,
         metavar="FRAMES",
         help="longest hole (lost or invalid frames) a window may contain; a longer one splits "
-        "it (default %(default)s)",
+        "it (default: the detector's, a few frames)",
     )
     d.add_argument(
         "--gyro-rate-max",
@@ -135,48 +139,31 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not _has_thresholds(args):
-        raise RecalInputError(
-            "give --init-still S (the recording starts still for S seconds; the thresholds are "
-            "learned there) or both --accel-threshold and --gyro-threshold"
-        )
-    config = DetectorConfig(
-        window_s=args.window,
-        min_duration_s=args.min_duration,
-        edge_trim_s=args.edge_trim,
-        accel_threshold=args.accel_threshold,
-        gyro_threshold=args.gyro_threshold,
-        init_still_s=args.init_still,
-        threshold_k=args.threshold_k,
-        sample_rate_hz=args.rate if args.format == "xsens-text" else None,
-        max_gap_frames=args.max_gap,
-        gyro_rate_max=args.gyro_rate_max,
-    )
+    from recal.errors import RecalInputError
+    from service.cli.recording import open_recording
+
     out = Path(args.output)
     if not (out.parent if str(out.parent) else Path(".")).is_dir():
         raise RecalInputError(f"output folder {out.parent} does not exist")
-    if args.format == "xsens-text":
-        frames, notes = _read_xsens(args.inputs)
-    else:
-        frames, notes = _read_kvh(args.inputs, args.format, args.rate, args)
-    detector = StaticDetector(config)
-    windows = _detect(detector, frames)
-    report = detector.report
+    recording = open_recording(args)
+    floor = None
+    if not _has_thresholds(args):
+        floor = _learn_noise_floor(recording, args)
+    windows, report = _detect(recording, _config(args, recording, floor))
     if not windows:
         rejected = ", ".join(f"{k} {v}" for k, v in report.rejected.items() if v) or "none"
         raise RecalInputError(
             f"no static window found in {report.frames} frames (rejected: {rejected}): check "
-            "the thresholds (--init-still, --threshold-k) and --min-duration"
+            "the thresholds (--threshold-k, --init-still) and --min-duration"
         )
     # Printed only on success: a failed run prints its one-line error and nothing else.
-    for line in notes + report.summary_lines():
+    for line in recording.notes() + report.summary_lines():
         print(f"recal positions: {line}", file=sys.stderr)
-    table = Positions.from_columns(windows_to_columns(windows), source=str(out))
-    atomic_write(out, table.to_csv_text())
-    durations = np.array([w.duration_s for w in windows])
+    _write(out, windows, recording.triads)
+    durations = [w.duration_s for w in windows]
     print(
-        f"recal positions: wrote {len(windows)} windows ({durations.min():.1f}-"
-        f"{durations.max():.1f} s long) to {out}",
+        f"recal positions: wrote {len(windows)} windows ({min(durations):.1f}-"
+        f"{max(durations):.1f} s long) to {out}",
         file=sys.stderr,
     )
     return 0
@@ -188,92 +175,116 @@ def _has_thresholds(args: argparse.Namespace) -> bool:
     )
 
 
-def _detect(detector: StaticDetector, frames: dict[str, np.ndarray | None]) -> list[Window]:
-    """Feed the detector in chunks, with a progress bar for long recordings on a terminal."""
-    n = frames["time_s"].shape[0]
-    bar = progress_bar(n, "positions") if n >= _PROGRESS_MIN_FRAMES else None
-    if bar is not None:
-        bar.unit = "frame"  # the shared helper counts runs
-        bar.refresh()
-    windows: list[Window] = []
-    try:
-        for lo in range(0, n, _CHUNK):
-            part = {k: (None if v is None else v[lo : lo + _CHUNK]) for k, v in frames.items()}
-            windows += detector.feed(**part)
-            if bar is not None:
-                bar.update(part["time_s"].shape[0])
-        windows += detector.flush()
-    finally:
-        if bar is not None:
-            bar.close()
-    return windows
+def _config(args: argparse.Namespace, recording, floor):
+    """The detector's settings: what the user gave; recal.static's defaults for the rest."""
+    from recal.static import DetectorConfig
+
+    given = {
+        "window_s": args.window,
+        "min_duration_s": args.min_duration,
+        "edge_trim_s": args.edge_trim,
+        "accel_threshold": args.accel_threshold,
+        "gyro_threshold": args.gyro_threshold,
+        "init_still_s": args.init_still,
+        "threshold_k": args.threshold_k,
+        "sample_rate_hz": recording.sample_rate_hz,
+        "max_gap_frames": args.max_gap,
+        "gyro_rate_max": args.gyro_rate_max,
+        "noise_floor": floor,
+    }
+    return DetectorConfig(**{k: v for k, v in given.items() if v is not None})
 
 
-def _read_xsens(inputs: list[str]) -> tuple[dict[str, np.ndarray | None], list[str]]:
-    from drivers.xsens_text import load_xsens_pair
+def _learn_noise_floor(recording, args: argparse.Namespace):
+    """Pass 1: the moving-variance floor of the whole recording (recal.static)."""
+    from recal import static
+    from recal.errors import RecalInputError
 
-    if len(inputs) != 2:
+    if not hasattr(static, "NoiseFloorEstimator"):  # the flag-free detector is not built yet
         raise RecalInputError(
-            f"xsens-text takes two inputs, the acc file and the gyro file; got {len(inputs)}"
+            "give --init-still S (the recording starts still for S seconds; the thresholds are "
+            "learned there) or both --accel-threshold and --gyro-threshold"
         )
-    acc_path, gyro_path = _order_pair(inputs)
-    data = load_xsens_pair(acc_path, gyro_path)
-    t = data["time_s"]
-    # The text has no sequence number: a time step of about k sample periods means k - 1 frames
-    # were lost there (timestamp jitter of a fraction of a period rounds away).
-    lost = np.zeros(t.shape[0], dtype=np.int64)
-    if t.shape[0] > 2:
-        steps = np.diff(t)
-        lost[1:] = np.maximum(np.rint(steps / np.median(steps)) - 1, 0)
-    frames = {
-        "time_s": t,
-        "gyro": data["gyro_counts"],
-        "accel": data["accel_counts"],
-        "temperature_c": None,
-        "valid": None,
-        "lost_before": lost,
+    given = {"window_s": args.window, "sample_rate_hz": recording.sample_rate_hz}
+    estimator = static.NoiseFloorEstimator(**{k: v for k, v in given.items() if v is not None})
+    with _ByteProgress(recording.total_bytes, "noise floor") as bar:
+        for frames in recording.frames(bar.update):
+            estimator.feed(frames["time_s"], frames["gyro"], frames["accel"], frames["valid"])
+    return estimator.result()
+
+
+def _detect(recording, config):
+    """Pass 2: stream the recording through the incremental detector."""
+    from recal.static import StaticDetector
+
+    detector = StaticDetector(config)
+    windows = []
+    with _ByteProgress(recording.total_bytes, "positions") as bar:
+        for frames in blocks(recording.frames(bar.update), DETECTOR_BLOCK):
+            windows += detector.feed(**frames)
+        windows += detector.flush()
+    return windows, detector.report
+
+
+def _write(out: Path, windows, triads: tuple[str, ...]) -> None:
+    """The positions CSV, atomically; columns of a triad the input lacks are left out."""
+    from recal.positions import Positions
+    from recal.static import windows_to_columns
+    from service.cli.common import atomic_write
+
+    missing = tuple(f"{s}_" for s in ("gyro", "accel") if s not in triads)
+    columns = {k: v for k, v in windows_to_columns(windows).items() if not k.startswith(missing)}
+    atomic_write(out, Positions.from_columns(columns, source=str(out)).to_csv_text())
+
+
+def blocks(pieces, size: int):
+    """Re-cut a stream of frame dicts into blocks of exactly ``size`` frames (the last shorter).
+
+    Holds at most one block plus one piece.
+    """
+    held: list[dict] = []
+    count = 0
+    for piece in pieces:
+        held.append(piece)
+        count += piece["time_s"].shape[0]
+        while count >= size:
+            joined = _join(held)
+            yield {k: (None if v is None else v[:size]) for k, v in joined.items()}
+            rest = {k: (None if v is None else v[size:]) for k, v in joined.items()}
+            count -= size
+            held = [rest] if count else []
+    if count:
+        yield _join(held)
+
+
+def _join(pieces: list[dict]) -> dict:
+    import numpy as np
+
+    if len(pieces) == 1:
+        return pieces[0]
+    return {
+        k: (None if pieces[0][k] is None else np.concatenate([p[k] for p in pieces]))
+        for k in pieces[0]
     }
-    return frames, [f"xsens-text: accel {acc_path}, gyro {gyro_path} (raw counts)"]
 
 
-def _order_pair(inputs: list[str]) -> tuple[str, str]:
-    """(acc, gyro): by 'acc' / 'gyro' in the file names when that is unambiguous, else as given."""
-    names = [Path(p).name.lower() for p in inputs]
-    acc = [i for i, name in enumerate(names) if "acc" in name]
-    gyro = [i for i, name in enumerate(names) if "gyr" in name]
-    if acc in ([1], []) and gyro in ([0], []) and (acc or gyro):
-        return inputs[1], inputs[0]
-    return inputs[0], inputs[1]
+class _ByteProgress:
+    """A bytes-read progress bar on stderr for long inputs on a terminal (else nothing)."""
 
+    def __init__(self, total: int, desc: str) -> None:
+        self._bar = None
+        if total >= _PROGRESS_MIN_BYTES:
+            from service.cli.common import progress_bar
 
-def _read_kvh(
-    inputs: list[str], fmt: str, rate: float | None, args: argparse.Namespace
-) -> tuple[dict[str, np.ndarray | None], list[str]]:
-    # Imported here: the Xsens path and --help need none of the KVH machinery.
-    from drivers import DecoderConfig, decode_bulk, require_frames
+            self._bar = progress_bar(total, desc, unit="B")
 
-    parts = [read_bytes(name, "input file") for name in inputs]
-    data = b"".join(parts)  # consecutive parts of one stream: frames may straddle the joins
-    path = Path(inputs[0]) if len(inputs) == 1 else Path(f"{inputs[0]} (+{len(inputs) - 1} parts)")
-    config = DecoderConfig(
-        gyro_output=args.gyro_output,
-        gyro_units=args.gyro_units,
-        temperature_units=args.temp_units,
-        **({} if rate is None else {"rate_hz": rate}),
-    )
-    batch, counters = decode_bulk(data, fmt, config)
-    require_frames(counters, fmt, source=str(path))
-    frames = {
-        "time_s": batch.time_s,
-        "gyro": batch.gyro_dph,
-        "accel": batch.accel_g,
-        "temperature_c": batch.temperature_c,
-        "valid": batch.valid,
-        "lost_before": batch.lost_before,
-    }
-    note = (
-        f"{fmt}: {counters.frames} frames decoded, {counters.crc_failures} CRC failures, "
-        f"{counters.sequence_gaps} sequence gaps ({counters.frames_lost} frames lost), "
-        f"{counters.invalid_status} invalid status; gyro deg/h, accel g"
-    )
-    return frames, [note]
+    def update(self, n: int) -> None:
+        if self._bar is not None:
+            self._bar.update(n)
+
+    def __enter__(self) -> _ByteProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
