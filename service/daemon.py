@@ -229,7 +229,7 @@ def make_server(service: Service) -> Any:
                     signal.signal(sig, handler)
 
     app = create_app(service.store, service.publisher, trigger=service.scheduler.trigger,
-                     health=service.health)  # fmt: skip
+                     health=service.health, api=service.settings.api)  # fmt: skip
     api = service.settings.api
     # open /events streams would hold a graceful shutdown forever: give them a few seconds
     config = uvicorn.Config(app, host=api.host, port=api.port, log_level="warning",

@@ -20,6 +20,8 @@ from service.config import (
 )
 from service.daemon import build_service, make_server
 
+TOKEN = "pipeline-test-token-0123456789"
+
 
 def test_demo_runs_the_whole_product(tmp_path, capsys):
     folder = tmp_path / "demo"
@@ -56,7 +58,7 @@ def test_daemon_over_a_real_http_server(tmp_path, capture):
         site=SiteSettings(latitude_deg=40.0),
         detector=DetectorSettings(init_still_s=25.0, min_duration_s=5.0),
         scheduler=SchedulerSettings(min_positions=100, min_new_positions=100),  # manual only
-        api={"port": 0},
+        api={"port": 0, "token": TOKEN},
     )
     service = build_service(settings)
     server = make_server(service)
@@ -78,7 +80,8 @@ def test_daemon_over_a_real_http_server(tmp_path, capture):
             service.ingest.flush()
             health = http.get("/health").json()
             assert health["status"] == "ok" and health["positions"] == 24
-            r = http.post("/recalibrate")
+            assert http.post("/recalibrate").status_code == 401  # writes need the token
+            r = http.post("/recalibrate", headers={"Authorization": f"Bearer {TOKEN}"})
             assert r.status_code == 202
             service.scheduler.wait(timeout=120)
             current = http.get("/coefficients")
