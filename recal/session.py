@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.signal import lfilter
 
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
@@ -105,7 +106,8 @@ def simulate_session(
     ``slew_s`` (length of each slew, s) and ``first_hold_s`` (length of the first hold, default
     ``window_s``; make it longer so a detector can learn its thresholds from an initial still
     period). From ``noise`` only the densities are used (``arw_deg_rt_h``, ``vrw_ug_rt_hz``),
-    turned into a per-sample sigma at ``rate_hz``; its window/slew/rate fields are ignored.
+    turned into a per-sample sigma at ``rate_hz``, and the Gauss-Markov bias (``gm_*``, off by
+    default); its window/slew/rate fields are ignored.
     The orientations are :func:`recal.simulate.design_orientations` with the same ``seed``, so
     they match :func:`recal.simulate.simulate_positions`. ``hidden`` terms are added to the
     truth model as in that function (value from ``truth`` or the term's typical magnitude).
@@ -179,6 +181,9 @@ def simulate_session(
     for sensor, x in (("gyro", gyro_in), ("accel", accel_in)):
         theta_vec, model = truth_model(truth, sensor, hidden)
         noisy = x + rng.normal(size=(N, 3)) * noise_at_rate.per_sample_sigma(sensor)
+        gm_sigma = noise.gauss_markov_sigma(sensor)
+        if gm_sigma > 0:  # drawn only when asked for, so white-noise sessions do not change
+            noisy += gauss_markov(rng, N, gm_sigma, noise.gm_tau_s, rate_hz)
         out[sensor] = model.forward(theta_vec, noisy, ctx)[0]
     return Session(
         time_s=time_s,
@@ -196,6 +201,20 @@ def simulate_session(
         height_m=float(height_m),
         gravity_g=g,
     )
+
+
+def gauss_markov(
+    rng: np.random.Generator, n: int, sigma: float, tau_s: float, rate_hz: float
+) -> np.ndarray:
+    """(n, 3) first-order Gauss-Markov process: stationary 1-sigma ``sigma``, correlation time
+    ``tau_s`` (s), sampled at ``rate_hz``; b_k = phi b_(k-1) + sqrt(1 - phi^2) sigma w_k."""
+    if not (math.isfinite(tau_s) and tau_s > 0):
+        raise RecalInputError(f"Gauss-Markov correlation time must be > 0 s, not {tau_s}")
+    phi = math.exp(-1.0 / (tau_s * rate_hz))
+    drive = rng.normal(size=(n, 3)) * (sigma * math.sqrt(1.0 - phi * phi))
+    # Start in the stationary distribution: the first sample already has variance sigma^2.
+    drive[0] = rng.normal(size=3) * sigma
+    return lfilter([1.0], [1.0, -phi], drive, axis=0)
 
 
 def session_positions(session: Session, sensors: Sequence[str] = ("gyro", "accel")) -> Positions:

@@ -92,11 +92,15 @@ def design_orientations(
 
 @dataclass(frozen=True)
 class NoiseSpec:
-    """White sensor noise and window timing.
+    """Sensor noise and window timing.
 
     arw_deg_rt_h: gyro angle random walk, deg/sqrt(h) (seed 000 Table 4: 0.0005).
     vrw_ug_rt_hz: accelerometer white noise density, micro-g/sqrt(Hz).
     window_s: static window length; slew_s: time between windows; rate_hz: sample rate.
+    gm_gyro_dph, gm_accel_ug: steady-state 1-sigma of a first-order Gauss-Markov bias added to
+        every sample (deg/h, micro-g), correlation time gm_tau_s (s). Real sensors have such
+        correlated noise (bias instability); 0 (the default) leaves it out. Only the sample-level
+        simulator (:func:`recal.session.simulate_session`) draws it.
     """
 
     arw_deg_rt_h: float = 0.0005
@@ -104,6 +108,13 @@ class NoiseSpec:
     window_s: float = 100.0
     slew_s: float = 30.0
     rate_hz: float = 1000.0
+    gm_gyro_dph: float = 0.0
+    gm_accel_ug: float = 0.0
+    gm_tau_s: float = 20.0
+
+    def gauss_markov_sigma(self, sensor: str) -> float:
+        """Steady-state 1-sigma of the Gauss-Markov bias in input units (deg/h or g)."""
+        return self.gm_gyro_dph if sensor == "gyro" else self.gm_accel_ug * 1e-6
 
     def per_sample_sigma(self, sensor: str) -> float:
         """Per-sample 1-sigma in input units (deg/h or g)."""

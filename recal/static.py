@@ -26,15 +26,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from recal.errors import RecalInputError
 from recal.positions import (
     ACCEL_COLUMNS,
+    ACCEL_SEM_COLUMNS,
     ACCEL_STD_COLUMNS,
     GYRO_COLUMNS,
+    GYRO_SEM_COLUMNS,
     GYRO_STD_COLUMNS,
 )
 
@@ -49,57 +51,111 @@ _EPS = float(np.finfo(np.float64).eps)
 
 # Raw row layout kept in the buffer.
 _T, _G, _A, _TEMP, _VALID, _LOST = 0, slice(1, 4), slice(4, 7), 7, 8, 9
-_NCOL = 10
+_TRA, _TRG = 10, 11  # the moving-variance traces, once computed (centre frames)
+_NCOL = 12
+_NFEAT = 22  # per-frame terms summed over a window (see _piece_features)
 _FAULT_NAMES = {1: "invalid_status", 2: "sequence_gap"}
+
+
+#: Moving-window length the defaults aim at, in frames: the trace of white noise then spreads
+#: about 8 % (sqrt(2 / (3 (W - 1)))), the figure threshold_k is chosen against.
+NOMINAL_WINDOW_FRAMES = 100
+#: Default max_gap_frames: holes a window bridges (see DetectorConfig).
+DEFAULT_MAX_GAP_FRAMES = 5
+
+
+def default_window_s(rate_hz: float) -> float:
+    """Default moving-window length, s: about 100 frames, kept between 0.1 s and 1 s.
+
+    1 s at 100 Hz (W = 101, as imu_tk-like detectors use), 0.1 s at 1 kHz (W = 101): the
+    statistic spreads the same at every rate, and at 1 kHz a 1 s hold keeps 0.9 s of quiet frames.
+    """
+    return min(1.0, max(0.1, NOMINAL_WINDOW_FRAMES / rate_hz))
+
+
+@dataclass(frozen=True)
+class NoiseFloor:
+    """The moving-variance trace of still data, learned from a recording.
+
+    accel, gyro: typical trace of the moving covariance (sum of the three per-axis variances) of
+        still data over ``window_samples`` frames, (accel input units)^2 and (gyro input units)^2.
+    window_samples: the moving-window length W it was measured with, frames.
+    source: where it comes from, in plain words.
+    """
+
+    accel: float
+    gyro: float
+    window_samples: int
+    source: str
+
+    def thresholds(self, k: float) -> tuple[float, float]:
+        """(accel, gyro) thresholds on the moving-variance trace: k times the floor."""
+        return k * self.accel, k * self.gyro
 
 
 @dataclass(frozen=True)
 class DetectorConfig:
     """How static windows are found. Durations in s; thresholds in (input units)^2.
 
-    window_s: length of the centred moving-variance window (1 s: long enough to average the
-        noise to about 8 % spread at 100 Hz, short enough to localise a stop).
-    min_duration_s: shortest window kept, after trimming.
+    Durations left at None follow the sample rate (see :meth:`durations`).
+
+    window_s: length of the centred moving-variance window. Default about 100 frames, between
+        0.1 s and 1 s (:func:`default_window_s`): 1 s at 100 Hz, 0.1 s at 1 kHz. The trace of
+        white noise then spreads about 8 % at any rate, and the window is short enough for a 1 s
+        hold at 1 kHz while a slew is still seen (its rate changes by far more than the gyro
+        noise within 0.1 s).
+    min_duration_s: shortest window kept, after trimming. Default max(window_s, 0.5 s): a mean
+        over at least one moving window (1 s at 100 Hz) and at least 0.5 s, so that a turning
+        point of a motion cannot pass for a hold, while a 1 s hold at 1 kHz (0.8 s after the
+        window and the trim) is kept.
     edge_trim_s: dropped at both ends of a run (and next to a fault). The run already starts
         half a window after the last loud frame; the trim also drops the settling tail that stays
-        below the threshold.
+        below the threshold. Default window_s / 2 (0.5 s at 100 Hz, 0.05 s at 1 kHz): the first
+        frame averaged is then a whole moving window after the last loud one.
     accel_threshold, gyro_threshold: explicit limits on the moving-variance trace. Each one not
-        given is learned from the initial still period (``init_still_s`` is then required).
+        given is threshold_k x the noise floor: ``noise_floor`` when given, else learned from the
+        initial still period ``init_still_s``. :class:`StaticDetector` needs one of the three;
+        :func:`detect_static` estimates the noise floor itself when none is given.
     init_still_s: the recording starts with this long a still period (imu_tk uses 50 s).
-    threshold_k: learned threshold = k x median moving-variance trace of the still period. On
-        white noise that statistic spreads about 8 % (W = 101) and real still periods reach
-        1.3x the median; poses of the Xsens recording reach 3.5x from settling, so 5 leaves
-        headroom while a disturbance of twice the noise RMS is already rejected.
+    noise_floor: the moving-variance trace of still data, from :func:`estimate_noise_floor` or
+        :class:`NoiseFloorEstimator` (a first pass over the recording, or a stored value).
+    threshold_k: threshold = k x noise floor. On white noise the trace spreads about 8 %
+        (W = 101) and real still periods reach 1.3x the median; poses of the Xsens recording
+        reach 3.5x from settling, so 5 leaves headroom while a disturbance of twice the noise
+        RMS is already rejected.
     sample_rate_hz: frames per second; derived from the median time step of the first 1024
         frames when not given.
     max_gap_frames: longest hole (consecutive invalid frames, or frames lost in one gap) a
-        window may contain; a longer one splits the run.
+        window may contain; a longer one splits the run. Default 5: a missing frame does not
+        bias a static mean (the mean of the others estimates the same constant), it only removes
+        one sample, so splitting there throws data away (a capture losing 0.1 % of its frames
+        gave 224 windows from 24 holds). 5 frames stay far below the moving window (about 100
+        frames), which still sees the motion around a hole.
     gyro_rate_max: when set, reject a window whose mean gyro differs from the reference (the
         still-period mean when learning, else zero) by more than this, in gyro units (vector
         norm). Variance cannot see a steady rotation about the gravity vector; this can.
     """
 
-    window_s: float = 1.0
-    min_duration_s: float = 1.0
-    edge_trim_s: float = 0.5
+    window_s: float | None = None
+    min_duration_s: float | None = None
+    edge_trim_s: float | None = None
     accel_threshold: float | None = None
     gyro_threshold: float | None = None
     init_still_s: float | None = None
     threshold_k: float = 5.0
     sample_rate_hz: float | None = None
-    max_gap_frames: int = 0
+    max_gap_frames: int = DEFAULT_MAX_GAP_FRAMES
     gyro_rate_max: float | None = None
+    noise_floor: NoiseFloor | None = None
 
     def __post_init__(self) -> None:
-        positive = {
+        if not (math.isfinite(self.threshold_k) and self.threshold_k > 0):
+            raise RecalInputError(
+                f"detector threshold_k must be a positive number, not {self.threshold_k}"
+            )
+        optional_positive = {
             "window_s": self.window_s,
             "min_duration_s": self.min_duration_s,
-            "threshold_k": self.threshold_k,
-        }
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0):
-                raise RecalInputError(f"detector {name} must be a positive number, not {value}")
-        optional_positive = {
             "init_still_s": self.init_still_s,
             "sample_rate_hz": self.sample_rate_hz,
             "gyro_rate_max": self.gyro_rate_max,
@@ -111,19 +167,26 @@ class DetectorConfig:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value >= 0):
                 raise RecalInputError(f"detector {name} must be a number >= 0, not {value}")
-        if not (math.isfinite(self.edge_trim_s) and self.edge_trim_s >= 0):
-            raise RecalInputError(f"detector edge_trim_s must be >= 0, not {self.edge_trim_s}")
+        trim = self.edge_trim_s
+        if trim is not None and not (math.isfinite(trim) and trim >= 0):
+            raise RecalInputError(f"detector edge_trim_s must be >= 0, not {trim}")
         if int(self.max_gap_frames) != self.max_gap_frames or self.max_gap_frames < 0:
             raise RecalInputError(
                 f"detector max_gap_frames must be a whole number >= 0, not {self.max_gap_frames}"
             )
-        if self.init_still_s is None and (
-            self.accel_threshold is None or self.gyro_threshold is None
-        ):
-            raise RecalInputError(
-                "the detector needs both accel and gyro thresholds, or an initial still period "
-                "(init_still_s) to learn them from"
-            )
+
+    @property
+    def has_thresholds(self) -> bool:
+        """Whether the thresholds are given or can be learned without a first pass."""
+        both = self.accel_threshold is not None and self.gyro_threshold is not None
+        return both or self.init_still_s is not None or self.noise_floor is not None
+
+    def durations(self, rate_hz: float) -> tuple[float, float, float]:
+        """(window_s, edge_trim_s, min_duration_s) at ``rate_hz``, the defaults filled in."""
+        window = default_window_s(rate_hz) if self.window_s is None else self.window_s
+        trim = window / 2 if self.edge_trim_s is None else self.edge_trim_s
+        shortest = max(window, 0.5) if self.min_duration_s is None else self.min_duration_s
+        return window, trim, shortest
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,6 +198,13 @@ class Window:
     averaged (valid ones). std: per-sample standard deviation (ddof 1). temperature_c: mean of the
     finite temperatures (NaN without any); temperature_rate_c_per_h: least-squares slope over
     time (NaN with fewer than two). frames_lost / frames_invalid: tolerated holes inside.
+    gyro_sem / accel_sem: standard error of the mean, input units, correlated noise included,
+    from this window's samples alone (:func:`pooled_standard_errors` pools a recording's
+    windows for a steadier value). accel_mvar / gyro_mvar: mean moving-variance trace over the
+    window's frames, (input units)^2 (what still data of this unit reads: a noise floor).
+    block_frames, allan_sq, allan_terms: the window's Allan statistics over blocks of
+    ``block_frames`` frames (row j: averaging over 2^j blocks; 6 columns gyro x y z, accel x y z):
+    the sums of half the squared differences of overlapping block averages and their count.
     """
 
     start_s: float
@@ -150,6 +220,13 @@ class Window:
     temperature_rate_c_per_h: float
     frames_lost: int
     frames_invalid: int
+    gyro_sem: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    accel_sem: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    accel_mvar: float = math.nan
+    gyro_mvar: float = math.nan
+    block_frames: int = 0
+    allan_sq: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    allan_terms: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def duration_s(self) -> float:
@@ -171,8 +248,21 @@ class DetectionReport:
     accel_threshold: float | None = None
     gyro_threshold: float | None = None
     thresholds_learned: bool = False
+    threshold_source: str = ""
     gyro_reference: np.ndarray | None = None
     duration_s: float = 0.0
+    short_stretches: int = 0  # quiet stretches too short to give a window (no fault involved)
+    longest_short_frames: int = 0  # the longest of them, quiet frames
+    edge_trim_frames: int = 0
+    required_frames: int = 0
+
+    def accepting_min_duration_s(self) -> float | None:
+        """The largest min_duration_s that would keep the longest too-short quiet stretch, s
+        (None when even 0 would not, because the edge trim eats it all)."""
+        if not self.short_stretches or not self.sample_rate_hz:
+            return None
+        keep = self.longest_short_frames - 2 * self.edge_trim_frames
+        return keep / self.sample_rate_hz if keep >= 2 else None
 
     def summary_lines(self) -> list[str]:
         """Plain-words summary, a few lines, for a log or the command line."""
@@ -182,13 +272,27 @@ class DetectionReport:
             f"invalid status {self.invalid_frames}, lost {self.lost_frames} in {self.gaps} gaps"
         ]
         if self.accel_threshold is not None and self.gyro_threshold is not None:
-            how = "learned" if self.thresholds_learned else "given"
+            how = self.threshold_source or ("learned" if self.thresholds_learned else "given")
             lines.append(
                 f"thresholds on the moving-variance trace over {self.window_samples} frames "
                 f"({how}): accel {self.accel_threshold:.4g}, gyro {self.gyro_threshold:.4g}"
             )
         reasons = ", ".join(f"{k} {v}" for k, v in self.rejected.items())
         lines.append(f"windows: {self.windows_kept} kept; rejected: {reasons}")
+        if self.short_stretches and self.sample_rate_hz:
+            rate = self.sample_rate_hz
+            need = (self.required_frames + 2 * self.edge_trim_frames) / rate
+            line = (
+                f"{self.short_stretches} quiet stretches too short to keep (longest "
+                f"{self.longest_short_frames / rate:.3g} s of quiet frames; a window needs "
+                f"{need:.3g} s: min_duration_s + 2 x edge_trim_s)"
+            )
+            shortest = self.accepting_min_duration_s()
+            if shortest is not None:
+                line += f"; min_duration_s {math.floor(shortest * 1000) / 1000:g} would keep it"
+            else:
+                line += "; lower edge_trim_s and min_duration_s to keep it"
+            lines.append(line)
         return lines
 
 
@@ -207,6 +311,11 @@ class _Geometry:
     n_min: int  # valid frames a moving window needs to count as measured
 
     @property
+    def block(self) -> int:
+        """Frames per block of the Allan statistics: one moving window."""
+        return self.W
+
+    @property
     def W(self) -> int:  # noqa: N802 - the window length is W throughout the docs
         return 2 * self.h + 1
 
@@ -222,6 +331,8 @@ class _Piece:
     g_ref: np.ndarray
     a_ref: np.ndarray
     sums: np.ndarray
+    blocks: list[np.ndarray] = field(default_factory=list)  # (k, 7) complete block sums
+    partial: tuple[int, np.ndarray] | None = None  # (block id, [frames, 7 sums]) still open
 
 
 class StaticDetector:
@@ -233,6 +344,11 @@ class StaticDetector:
     """
 
     def __init__(self, config: DetectorConfig) -> None:
+        if not config.has_thresholds:
+            raise RecalInputError(
+                "the detector needs both accel and gyro thresholds, an initial still period "
+                "(init_still_s) or a noise floor (estimate_noise_floor) to set them from"
+            )
         self.config = config
         self.report = DetectionReport()
         self._data = np.empty((0, _NCOL))
@@ -250,7 +366,22 @@ class StaticDetector:
         # Learning: per-centre statistics held until the still period is over.
         self._thr_a = config.accel_threshold
         self._thr_g = config.gyro_threshold
-        self._learning = config.init_still_s is not None
+        floor = config.noise_floor
+        self._learning = config.init_still_s is not None and floor is None
+        given = self._thr_a is not None and self._thr_g is not None
+        if given:
+            source = "given"
+        elif floor is not None:
+            source = floor.source
+            thr_a, thr_g = floor.thresholds(config.threshold_k)
+            self._thr_a = thr_a if self._thr_a is None else self._thr_a
+            self._thr_g = thr_g if self._thr_g is None else self._thr_g
+        else:
+            source = f"learned from the initial {config.init_still_s:g} s still period"
+        if not given and (config.accel_threshold is not None or config.gyro_threshold is not None):
+            source += f" ({'accel' if config.accel_threshold is not None else 'gyro'} given)"
+        self.report.threshold_source = source
+        self.report.thresholds_learned = not given
         self._pending: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self._gyro_ref = np.zeros(3)
         # Stage 2: labels, faults and rejection bookkeeping.
@@ -360,6 +491,7 @@ class StaticDetector:
         if (lost < 0).any() or not np.isfinite(lost).all():
             raise RecalInputError("lost_before must hold frame counts >= 0")
         rows[:, _LOST] = lost
+        rows[:, _TRA:] = np.nan
         if n:
             if self._t0 is None:
                 self._t0 = float(t[0])
@@ -421,14 +553,17 @@ class StaticDetector:
             if n < 2:
                 return False
             rate = 1.0 / float(np.median(np.diff(self._view(0, n)[:, _T])))
-        h = max(1, round(cfg.window_s * rate / 2))
+        window_s, trim_s, min_s = cfg.durations(rate)
+        h = max(1, round(window_s * rate / 2))
         self._geom = _Geometry(
             rate=rate,
             h=h,
-            trim=max(0, round(cfg.edge_trim_s * rate)),
-            required=max(2, round(cfg.min_duration_s * rate)),
+            trim=max(0, round(trim_s * rate)),
+            required=max(2, round(min_s * rate)),
             n_min=h + 1,
         )
+        self.report.edge_trim_frames = self._geom.trim
+        self.report.required_frames = self._geom.required
         self._qhist = np.zeros(self._geom.trim, dtype=bool)  # frames before the stream
         self.report.sample_rate_hz = rate
         self.report.window_samples = self._geom.W
@@ -465,6 +600,8 @@ class StaticDetector:
             n[sl] = cnt
             tra[sl] = np.where(measured, var[:, 3:6].sum(axis=1), np.inf)
             trg[sl] = np.where(measured, var[:, 0:3].sum(axis=1), np.inf)
+        stats = self._view(lo, hi)
+        stats[:, _TRA], stats[:, _TRG] = tra, trg  # kept for the windows' mean trace
         self._next_center = hi
         return lo, n, tra, trg
 
@@ -510,7 +647,6 @@ class StaticDetector:
         ok = still[:, _VALID] > 0
         self._gyro_ref = still[ok][:, _G].mean(axis=0)
         rep = self.report
-        rep.thresholds_learned = cfg.accel_threshold is None or cfg.gyro_threshold is None
         rep.gyro_reference = self._gyro_ref.copy()
         self._learning = False
         pending, self._pending = self._pending, []
@@ -585,6 +721,11 @@ class StaticDetector:
             per_c[0] += self._c_pending
         rejected = self.report.rejected
         long_c = c_len >= need
+        short_len = c_len[~long_c]
+        if short_len.size:
+            self.report.short_stretches += int(short_len.size)
+            longest = max(self.report.longest_short_frames, int(short_len.max()))
+            self.report.longest_short_frames = longest
         rejected["too_short"] += int((~long_c).sum()) + int(per_c[:c_closed][long_c, 0].sum())
         for kind, name in _FAULT_NAMES.items():
             rejected[name] += int(per_c[:c_closed][long_c, kind].sum())
@@ -648,6 +789,16 @@ class StaticDetector:
                 0.0 if math.isnan(self._temp_ref) else self._temp_ref,
             )
             sums = np.add.reduceat(feats, seg_pos, axis=0)
+            # Block sums for the Allan statistics: blocks aligned on the global frame index, so
+            # every chunking cuts them alike; a block counts once all its frames are kept.
+            B = self._geom.block
+            bid = (d0 + sel) // B
+            cut = np.ones(sel.shape[0], dtype=bool)
+            cut[1:] = (bid[1:] != bid[:-1]) | (seg_id[1:] != seg_id[:-1])
+            g_pos = np.flatnonzero(cut)
+            g_sums = np.add.reduceat(feats[:, _BLOCK_FEATS], g_pos, axis=0)
+            g_len = np.diff(g_pos, append=sel.shape[0])
+            g_of_seg = np.searchsorted(seg_id[g_pos], np.arange(seg_starts.shape[0] + 1))
             ends = np.concatenate((en, [m.shape[0]])) if m[-1] else en
             for k in range(seg_starts.shape[0]):
                 last = d0 + int(ends[k]) - 1
@@ -664,7 +815,10 @@ class StaticDetector:
                         a_ref=a_ref[k],
                         sums=sums[k],
                     )
-                if k < seg_starts.shape[0] - 1 or not m[-1]:
+                closes = k < seg_starts.shape[0] - 1 or not m[-1]
+                gs = slice(g_of_seg[k], g_of_seg[k + 1])
+                _add_blocks(piece, bid[g_pos[gs]], g_len[gs], g_sums[gs], B, still_open=not closes)
+                if closes:
                     self._finish(piece)
                     piece = None
         if final and piece is not None:
@@ -693,6 +847,8 @@ class StaticDetector:
             return
         var_g = np.maximum(s[4:7] - s[1:4] * d_g, 0.0) / (n - 1)
         var_a = np.maximum(s[10:13] - s[7:10] * d_a, 0.0) / (n - 1)
+        kept = piece.last - piece.first + 1
+        allan_sq, allan_terms = _allan_sums(piece.blocks, g.block)
         nt, st, stt, sv, stv = s[13:18]
         temp, rate = math.nan, math.nan
         if nt > 0:
@@ -701,6 +857,8 @@ class StaticDetector:
             if nt >= 2 and den > 0:
                 rate = (nt * stv - st * sv) / den * 3600.0  # degC/s -> degC/h
         t0 = self._t0
+        std = np.sqrt(np.concatenate((var_g, var_a)))
+        sem = _standard_errors(np.array([n]), std[None], [(allan_sq, allan_terms)], g.block)[0]
         self._out.append(
             Window(
                 start_s=piece.t_first - t0,
@@ -710,14 +868,22 @@ class StaticDetector:
                 samples=int(n),
                 gyro=gyro,
                 accel=piece.a_ref + d_a,
-                gyro_std=np.sqrt(var_g),
-                accel_std=np.sqrt(var_a),
+                gyro_std=std[:3],
+                accel_std=std[3:],
                 temperature_c=float(temp),
                 temperature_rate_c_per_h=float(rate),
                 frames_lost=int(s[19]),
                 frames_invalid=int(s[18]),
+                accel_mvar=float(s[20] / kept),
+                gyro_mvar=float(s[21] / kept),
+                block_frames=g.block,
+                allan_sq=allan_sq,
+                allan_terms=allan_terms,
+                gyro_sem=sem[:3],  # from this window's own samples
+                accel_sem=sem[3:],
             )
         )
+
         self.report.windows_kept += 1
 
 
@@ -751,7 +917,7 @@ def _window_sums(f: np.ndarray, starts: tuple[int, int], W: int) -> np.ndarray:
 def _piece_features(rows, prev_in, t_first, g_ref, a_ref, temp_ref: float) -> np.ndarray:
     """Per kept frame, the terms whose sums give a window's means, variances and slope."""
     w = rows[:, _VALID] > 0
-    f = np.zeros((rows.shape[0], 20))
+    f = np.zeros((rows.shape[0], _NFEAT))
     dg = np.where(w[:, None], rows[:, _G] - g_ref, 0.0)
     da = np.where(w[:, None], rows[:, _A] - a_ref, 0.0)
     f[:, 0] = w
@@ -765,7 +931,29 @@ def _piece_features(rows, prev_in, t_first, g_ref, a_ref, temp_ref: float) -> np
     f[:, 16], f[:, 17] = theta, tau * theta
     f[:, 18] = ~w
     f[:, 19] = np.where(prev_in, rows[:, _LOST], 0.0)  # a gap between two kept frames
+    f[:, 20], f[:, 21] = rows[:, _TRA], rows[:, _TRG]  # finite: every kept frame was quiet
     return f
+
+
+#: Columns of _piece_features summed per block: valid count, gyro and accel relative values.
+_BLOCK_FEATS = [0, 1, 2, 3, 7, 8, 9]
+
+
+def _add_blocks(piece: _Piece, bid, count, sums, block: int, still_open: bool) -> None:
+    """Add one call's block groups (block ids, kept frames, summed _BLOCK_FEATS) to a piece."""
+    if bid.size == 0:
+        return
+    count = count.copy()
+    sums = sums.copy()
+    if piece.partial is not None and piece.partial[0] == bid[0]:
+        count[0] += int(piece.partial[1][0])
+        sums[0] += piece.partial[1][1:]
+    piece.partial = None
+    complete = count == block
+    if still_open and not complete[-1]:
+        piece.partial = (int(bid[-1]), np.concatenate(([count[-1]], sums[-1])))
+    if complete.any():
+        piece.blocks.append(sums[complete])
 
 
 def detect_static(
@@ -776,9 +964,24 @@ def detect_static(
     valid: np.ndarray | None = None,
     lost_before: np.ndarray | None = None,
     *,
-    config: DetectorConfig,
+    config: DetectorConfig | None = None,
 ) -> DetectionResult:
-    """Find the static windows of a whole recording (gyro and accel (N, 3), any units)."""
+    """Find the static windows of a whole recording (gyro and accel (N, 3), any units).
+
+    With no thresholds, no initial still period and no noise floor in ``config``, the noise
+    floor is first estimated from the recording itself (:func:`estimate_noise_floor`).
+    """
+    config = DetectorConfig() if config is None else config
+    if not config.has_thresholds:
+        floor = estimate_noise_floor(
+            time_s,
+            gyro,
+            accel,
+            valid,
+            window_s=config.window_s,
+            sample_rate_hz=config.sample_rate_hz,
+        )
+        config = replace(config, noise_floor=floor)
     det = StaticDetector(config)
     windows = det.feed(time_s, gyro, accel, temperature_c, valid, lost_before)
     windows += det.flush()
@@ -788,20 +991,24 @@ def detect_static(
 def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
     """Positions-table columns (conventions section 4) plus frames_lost and frames_invalid.
 
-    The temperature columns appear only when every window has a finite value.
+    The ``*_sem`` columns are :func:`pooled_standard_errors` over these windows. The
+    temperature columns appear only when every window has a finite value.
     """
     cols: dict[str, np.ndarray] = {
         "start_s": np.array([w.start_s for w in windows], dtype=float),
         "end_s": np.array([w.end_s for w in windows], dtype=float),
         "samples": np.array([w.samples for w in windows], dtype=float),
     }
-    for names, attr in (
-        (GYRO_COLUMNS, "gyro"),
-        (ACCEL_COLUMNS, "accel"),
-        (GYRO_STD_COLUMNS, "gyro_std"),
-        (ACCEL_STD_COLUMNS, "accel_std"),
+    gyro_sem, accel_sem = pooled_standard_errors(windows)
+    for names, values in (
+        (GYRO_COLUMNS, [w.gyro for w in windows]),
+        (ACCEL_COLUMNS, [w.accel for w in windows]),
+        (GYRO_STD_COLUMNS, [w.gyro_std for w in windows]),
+        (ACCEL_STD_COLUMNS, [w.accel_std for w in windows]),
+        (GYRO_SEM_COLUMNS, gyro_sem),
+        (ACCEL_SEM_COLUMNS, accel_sem),
     ):
-        stack = np.array([getattr(w, attr) for w in windows], dtype=float).reshape(-1, 3)
+        stack = np.array(values, dtype=float).reshape(-1, 3)
         for j, name in enumerate(names):
             cols[name] = stack[:, j]
     for name in ("temperature_c", "temperature_rate_c_per_h"):
@@ -811,3 +1018,302 @@ def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
     cols["frames_lost"] = np.array([w.frames_lost for w in windows], dtype=float)
     cols["frames_invalid"] = np.array([w.frames_invalid for w in windows], dtype=float)
     return cols
+
+
+# ---- the standard error of a window mean, correlated noise included -----------------------
+_GM_SIGNIFICANCE = 9.21  # chi-square(2) at 1 %: the Gauss-Markov part must earn its 2 parameters
+_TAU_PER_OCTAVE = 4
+
+
+def _allan_sums(blocks: list[np.ndarray], block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Overlapping Allan sums of one window from its complete blocks' sums (k, 7).
+
+    Row j averages over m = 2^j blocks: sum over k of (ybar_(k+m) - ybar_k)^2 / 2 per axis, and
+    the number of terms. Blocks missing more than half their frames are left out.
+    """
+    if not blocks:
+        return np.zeros((0, 6)), np.zeros(0)
+    b = np.concatenate(blocks)
+    b = b[b[:, 0] >= (block + 1) // 2]
+    y = b[:, 1:] / b[:, :1] if b.size else np.zeros((0, 6))
+    c = np.concatenate((np.zeros((1, 6)), np.cumsum(y, axis=0)))
+    sq, terms = [], []
+    m = 1
+    while 2 * m <= y.shape[0]:
+        avg = (c[m:] - c[:-m]) / m
+        d = avg[m:] - avg[:-m]
+        sq.append(0.5 * (d * d).sum(axis=0))
+        terms.append(d.shape[0])
+        m *= 2
+    if not sq:
+        return np.zeros((0, 6)), np.zeros(0)
+    return np.array(sq), np.array(terms, dtype=float)
+
+
+def _gm_allan(x: np.ndarray) -> np.ndarray:
+    """Allan variance of a unit-variance Gauss-Markov process at averaging time x * tau."""
+    r = -np.expm1(-x) / x
+    return 2.0 / x * (1.0 - r) - r * r
+
+
+def _gm_mean_var(x: np.ndarray) -> np.ndarray:
+    """Variance of the mean of a unit-variance Gauss-Markov process over x * tau."""
+    return 2.0 / x * (1.0 + np.expm1(-x) / x)
+
+
+def _fit_noise(avar: np.ndarray, dof: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
+    """Fit AVAR(t) = q / t + s2 * G(t / tau) to pooled Allan variances (one axis).
+
+    t in frames; weights dof / 2 on the relative misfit (an Allan variance from dof independent
+    differences has relative variance about 2 / dof). Returns (q, s2, tau): white level
+    (variance x frames), Gauss-Markov variance and correlation time (frames); s2 = 0 unless
+    the Gauss-Markov part lowers the misfit significantly. tau is searched up to the longest
+    averaging time seen: a longer correlation is not identifiable from the data.
+    """
+    ok = (avar > 0) & (dof > 0)
+    if not ok.any():
+        return 0.0, 0.0, 1.0
+    a, w, t = avar[ok], np.sqrt(dof[ok] / 2), t[ok]
+    white = w / t / a
+    q = max(float(white @ w / (white @ white)), 0.0)
+    best = (float(np.sum((w - q * white) ** 2)), q, 0.0, 1.0)
+    ssr_white = best[0]
+    if t.shape[0] >= 3:
+        octaves = np.log2(t[-1] / t[0]) + 1
+        taus = t[0] * 2.0 ** (np.arange(round(octaves * _TAU_PER_OCTAVE) + 1) / _TAU_PER_OCTAVE)
+        for tau in taus:
+            X = np.column_stack((white, w * _gm_allan(t / tau) / a))
+            coef = np.linalg.lstsq(X, w, rcond=None)[0]
+            if (coef < 0).any():
+                continue  # the one-column fits are already covered by the white-only fit
+            ssr = float(np.sum((w - X @ coef) ** 2))
+            if ssr < best[0]:
+                best = (ssr, float(coef[0]), float(coef[1]), float(tau))
+        if ssr_white - best[0] < _GM_SIGNIFICANCE:
+            return q, 0.0, 1.0
+    return best[1], best[2], best[3]
+
+
+def _standard_errors(
+    samples: np.ndarray,
+    std: np.ndarray,
+    allan: Sequence[tuple[np.ndarray, np.ndarray]],
+    block: int,
+) -> np.ndarray:
+    """(M, 6) standard errors of the window means (gyro x y z, accel x y z), input units.
+
+    The Allan variances of all M windows are pooled per axis and fitted with white noise plus a
+    Gauss-Markov process; that gives the variance of a mean over n frames, var(n). Relative to
+    white noise it is F(n) = var(n) n / s^2 (s^2: the pooled per-sample variance), and each
+    window gets std_w sqrt(F(n_w) / n_w): the shape from the recording, the level its own.
+    Without any Allan statistics (windows shorter than two blocks) it is std / sqrt(n).
+    """
+    samples = np.asarray(samples, dtype=float)
+    white_sem = std / np.sqrt(samples)[:, None]
+    levels = max((a[0].shape[0] for a in allan), default=0)
+    if levels == 0 or samples.size == 0:
+        return white_sem
+    sq = np.zeros((levels, 6))
+    terms = np.zeros(levels)
+    for a_sq, a_terms in allan:
+        sq[: a_sq.shape[0]] += a_sq
+        terms[: a_terms.shape[0]] += a_terms
+    m = 2.0 ** np.arange(levels)
+    t = block * m  # averaging time, frames
+    dof = terms / m  # about one independent difference per m overlapping ones
+    dof_s = np.maximum(samples - 1, 0)
+    pooled_var = (dof_s @ std**2) / max(dof_s.sum(), 1.0)
+    out = white_sem.copy()
+    for c in range(6):
+        if pooled_var[c] <= 0:
+            continue  # noiseless: 0 stays 0
+        avar = np.divide(sq[:, c], terms, out=np.zeros(levels), where=terms > 0)
+        q, s2, tau = _fit_noise(avar, dof, t)
+        var_mean = q / samples + s2 * _gm_mean_var(samples / tau)
+        factor = var_mean * samples / pooled_var[c]
+        out[:, c] = std[:, c] * np.sqrt(factor / samples)
+    return out
+
+
+def pooled_standard_errors(windows: Sequence[Window]) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 3) gyro and (M, 3) accel standard errors of the window means, input units.
+
+    Correlated noise included: the windows' Allan statistics are pooled over the recording
+    (see docs/engine.md, "Correlated noise"). Windows with another block length than the
+    first one's are not pooled with it; each such group is pooled on its own.
+    """
+    out = np.zeros((len(windows), 6))
+    blocks = np.array([w.block_frames for w in windows], dtype=np.int64)
+    for block in np.unique(blocks):
+        idx = np.flatnonzero(blocks == block)
+        group = [windows[i] for i in idx]
+        out[idx] = _standard_errors(
+            np.array([w.samples for w in group], dtype=float),
+            np.array([np.concatenate((w.gyro_std, w.accel_std)) for w in group]).reshape(-1, 6),
+            [(w.allan_sq, w.allan_terms) for w in group],
+            max(int(block), 1),
+        )
+    return out[:, :3], out[:, 3:]
+
+
+# ---- the noise floor, learned from the recording itself ------------------------------------
+#: Share of the blocks taken as the provisional floor: still works with only 1/3 still time
+#: (the quantile then sits inside the still blocks) down to about 15 %.
+FLOOR_QUANTILE = 0.10
+#: Blocks within this factor of the provisional floor (both triads) are the "still" ones whose
+#: median is the floor: white noise over ~100 frames spreads about 8 %, so every still block
+#: passes, and motion (far louder) does not.
+FLOOR_SPREAD = 3.0
+MIN_FLOOR_BLOCKS = 10
+
+
+class NoiseFloorEstimator:
+    """Learns the noise floor from a recording fed in chunks, with bounded memory.
+
+    The recording is cut into blocks of W frames (the detector's moving window, aligned on the
+    first frame); each block gives the trace of its per-axis variance (ddof 0, valid frames
+    only; blocks with fewer than (W + 1) / 2 valid frames are skipped) for the accel and the gyro,
+    and its start time: three numbers per block. The floor is then the median trace of the
+    still blocks (see :meth:`result`). The smallest nonzero step between consecutive valid
+    values of each axis is tracked too: quantised data (raw counts) then never get a floor
+    below the quantisation noise, step^2 / 12 per axis.
+    """
+
+    def __init__(self, window_s: float | None = None, sample_rate_hz: float | None = None) -> None:
+        if window_s is not None and not (math.isfinite(window_s) and window_s > 0):
+            raise RecalInputError(f"noise floor window_s must be a positive number, not {window_s}")
+        if sample_rate_hz is not None and not (
+            math.isfinite(sample_rate_hz) and sample_rate_hz > 0
+        ):
+            raise RecalInputError(
+                f"noise floor sample_rate_hz must be a positive number, not {sample_rate_hz}"
+            )
+        self._window_s = window_s
+        self._rate = sample_rate_hz
+        self._W: int | None = None
+        self._rows = np.empty((0, 8))  # t, gyro xyz, accel xyz, valid: the undecided frames
+        self._blocks: list[np.ndarray] = []  # (k, 3): start time, accel trace, gyro trace
+        self._step = np.full(6, np.inf)  # smallest nonzero step per axis
+        self._last = np.full(6, np.nan)  # last valid frame's values, for steps across chunks
+        self._t0: float | None = None
+        self._frames = 0
+
+    @property
+    def window_samples(self) -> int | None:
+        return self._W
+
+    def feed(self, time_s, gyro, accel, valid=None) -> None:
+        """Add frames: time in s (N,), gyro and accel (N, 3), optional valid flags (N,)."""
+        t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+        n = t.shape[0]
+        g = np.asarray(gyro, dtype=np.float64)
+        a = np.asarray(accel, dtype=np.float64)
+        if g.shape != (n, 3) or a.shape != (n, 3):
+            raise RecalInputError(
+                f"gyro and accel must have shape ({n}, 3) like time_s; got {g.shape} and {a.shape}"
+            )
+        ok = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
+        if valid is not None:
+            v = np.asarray(valid).reshape(-1)
+            if v.shape[0] != n:
+                raise RecalInputError(f"valid has {v.shape[0]} values for {n} frames")
+            ok &= v.astype(bool)
+        if n == 0:
+            return
+        if self._t0 is None:
+            self._t0 = float(t[0])
+        self._frames += n
+        self._track_steps(np.concatenate((g, a), axis=1)[ok])
+        rows = np.column_stack((t, g, a, ok))
+        rows[~ok, 1:7] = 0.0  # invalid frames carry no weight and may hold garbage
+        self._rows = np.concatenate((self._rows, rows))
+        self._take_blocks(final=False)
+
+    def result(self) -> NoiseFloor:
+        """The noise floor of the frames fed so far; RecalInputError when there are too few."""
+        self._take_blocks(final=True)
+        blocks = np.concatenate(self._blocks) if self._blocks else np.zeros((0, 3))
+        if self._W is None or blocks.shape[0] < MIN_FLOOR_BLOCKS:
+            raise RecalInputError(
+                f"too little data to learn the noise floor: {blocks.shape[0]} measurable blocks "
+                f"of {self._W or '?'} frames, need {MIN_FLOOR_BLOCKS}; give an initial still "
+                "period or both thresholds"
+            )
+        start, tra, trg = blocks.T
+        # Provisional floor: a low quantile, inside the still blocks when at least ~15 % of the
+        # recording is still (wherever that is). The floor is the median of the blocks near it.
+        qa, qg = np.quantile(tra, FLOOR_QUANTILE), np.quantile(trg, FLOOR_QUANTILE)
+        still = (tra <= FLOOR_SPREAD * qa) & (trg <= FLOOR_SPREAD * qg)
+        if not still.any():  # the two triads' quietest blocks do not coincide
+            tiny = np.finfo(float).tiny
+            score = tra / max(qa, tiny) + trg / max(qg, tiny)
+            still = score <= np.quantile(score, FLOOR_QUANTILE)
+        quant = self._step**2 / 12.0  # a still quantised signal varies by at least this
+        quant[~np.isfinite(quant)] = 0.0
+        accel = max(float(np.median(tra[still])), float(quant[3:].sum()))
+        gyro = max(float(np.median(trg[still])), float(quant[:3].sum()))
+        rate = self._rate
+        span = f"{start[still].min():.0f}-{start[still].max() + self._W / rate:.0f} s"
+        source = (
+            f"quietest {self._W / rate:.3g} s stretches of the recording "
+            f"({int(still.sum())} of {blocks.shape[0]}, within {span})"
+        )
+        return NoiseFloor(accel=accel, gyro=gyro, window_samples=self._W, source=source)
+
+    def _track_steps(self, values: np.ndarray) -> None:
+        if values.shape[0] == 0:
+            return
+        seq = np.concatenate((self._last[None], values))
+        step = np.abs(np.diff(seq, axis=0))
+        step[~(step > 0)] = np.inf  # zero steps and the NaN before the first frame
+        self._step = np.minimum(self._step, step.min(axis=0))
+        self._last = values[-1].copy()
+
+    def _take_blocks(self, final: bool) -> None:
+        if self._W is None:
+            rows = self._rows
+            if self._rate is None:
+                if rows.shape[0] < _RATE_PROBE + 1 and not (final and rows.shape[0] >= 2):
+                    return
+                probe = rows[: _RATE_PROBE + 1, 0]
+                self._rate = 1.0 / float(np.median(np.diff(probe)))
+            window_s = default_window_s(self._rate) if self._window_s is None else self._window_s
+            self._W = 2 * max(1, round(window_s * self._rate / 2)) + 1  # as the detector's
+        W = self._W
+        nb = self._rows.shape[0] // W
+        if nb == 0:
+            return
+        blk = self._rows[: nb * W].reshape(nb, W, 8)
+        self._rows = self._rows[nb * W :]
+        w = blk[:, :, 7]
+        cnt = w.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = blk[:, :, 1:7].sum(axis=1) / cnt[:, None]
+            dev = (blk[:, :, 1:7] - mean[:, None, :]) * w[:, :, None]
+            var = (dev * dev).sum(axis=1) / cnt[:, None]  # two-pass: exact for raw counts
+        ok = cnt >= (W + 1) // 2
+        t_start = blk[:, 0, 0] - self._t0
+        stats = np.column_stack((t_start, var[:, 3:].sum(axis=1), var[:, :3].sum(axis=1)))
+        self._blocks.append(stats[ok])
+
+
+def estimate_noise_floor(
+    time_s: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    valid: np.ndarray | None = None,
+    *,
+    window_s: float | None = None,
+    sample_rate_hz: float | None = None,
+) -> NoiseFloor:
+    """The noise floor of a whole recording (see :class:`NoiseFloorEstimator`)."""
+    est = NoiseFloorEstimator(window_s=window_s, sample_rate_hz=sample_rate_hz)
+    for lo in range(0, np.shape(time_s)[0], _SLICE):
+        sl = slice(lo, lo + _SLICE)
+        est.feed(
+            np.asarray(time_s)[sl],
+            np.asarray(gyro)[sl],
+            np.asarray(accel)[sl],
+            None if valid is None else np.asarray(valid)[sl],
+        )
+    return est.result()

@@ -147,6 +147,12 @@ def assert_same_windows(got: list[Window], ref: list[Window]) -> None:
             x.temperature_rate_c_per_h, y.temperature_rate_c_per_h, rtol=1e-6, atol=1e-9
         )
         assert (x.frames_lost, x.frames_invalid) == (y.frames_lost, y.frames_invalid)
+        np.testing.assert_allclose(x.gyro_sem, y.gyro_sem, rtol=1e-6)
+        np.testing.assert_allclose(x.accel_sem, y.accel_sem, rtol=1e-6)
+        np.testing.assert_allclose(
+            [x.accel_mvar, x.gyro_mvar], [y.accel_mvar, y.gyro_mvar], rtol=1e-9
+        )
+        np.testing.assert_array_equal(x.allan_terms, y.allan_terms)
 
 
 # ---- an independent, loop-based reference of the documented rules ---------------------------
@@ -154,12 +160,9 @@ def reference_windows(t, g, a, valid, lost, cfg: DetectorConfig):
     """Straight from the docstring: centred moving variance, faults, trim, minimum length."""
     n = t.shape[0]
     rate = cfg.sample_rate_hz
-    h = max(1, round(cfg.window_s * rate / 2))
-    trim, need, tol = (
-        round(cfg.edge_trim_s * rate),
-        round(cfg.min_duration_s * rate),
-        cfg.max_gap_frames,
-    )
+    window_s, trim_s, min_s = cfg.durations(rate)
+    h = max(1, round(window_s * rate / 2))
+    trim, need, tol = round(trim_s * rate), round(min_s * rate), cfg.max_gap_frames
     valid = valid & np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
     quiet = np.zeros(n, dtype=bool)
     for c in range(h, n - h):
@@ -356,7 +359,7 @@ def faulty_session():
 
 def test_invalid_status_and_gaps_split_windows_and_are_counted():
     t, g, a, valid, lost = faulty_session()
-    cfg = DetectorConfig(**EXPLICIT)
+    cfg = DetectorConfig(**EXPLICIT, max_gap_frames=0)  # every hole splits
     res = detect_static(t, g, a, valid=valid, lost_before=lost, config=cfg)
     rep = res.report
     # Pieces: [0, 1000) | (1000, 1060): too short | (1060, 2000) | [2000, 2080): too short | ...
@@ -442,7 +445,8 @@ def test_windows_to_columns_is_a_positions_table():
     cols = windows_to_columns(ws)
     expected = {"start_s", "end_s", "samples", "frames_lost", "frames_invalid"}
     for sensor in ("gyro", "accel"):
-        expected |= {f"{sensor}_{ax}" for ax in "xyz"} | {f"{sensor}_{ax}_std" for ax in "xyz"}
+        for suffix in ("", "_std", "_sem"):
+            expected |= {f"{sensor}_{ax}{suffix}" for ax in "xyz"}
     assert set(cols) == expected
     table = Positions.from_columns(cols)
     assert len(table) == 2
@@ -454,7 +458,7 @@ def test_windows_to_columns_is_a_positions_table():
 
 def test_configuration_errors_are_input_errors():
     with pytest.raises(RecalInputError, match="init_still_s"):
-        DetectorConfig()
+        StaticDetector(DetectorConfig())  # a first pass (estimate_noise_floor) is needed
     with pytest.raises(RecalInputError, match="window_s"):
         DetectorConfig(init_still_s=10, window_s=0)
     t, g, a = Session().still("a", 5).build()
