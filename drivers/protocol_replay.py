@@ -174,6 +174,19 @@ class Serial(SerialBase):
         self._delivered += len(out)
         return bytes(out)
 
+    def _wait_for(self, missing: int, left: float | None) -> float:
+        """How long to sleep before ``missing`` more bytes are due (a real port blocks the same
+        way): the pacing time of those bytes, at most 50 ms so cancel_read() is seen soon, and
+        never past the read timeout. Pacing one byte at a time would spin."""
+        rate = self._options.byte_rate if self._options else None
+        if rate is None or self._file_left() <= 0:
+            wait = 0.01
+        else:
+            due = (self._delivered + missing) / rate
+            wait = max(due - (time.monotonic() - self._t0), 0.0005)
+        wait = min(wait, 0.05)
+        return max(0.0, wait if left is None else min(wait, left))
+
     @property
     def in_waiting(self) -> int:
         if not self.is_open:
@@ -208,10 +221,7 @@ class Serial(SerialBase):
                     raise SerialException("replay: end of capture")
             if timeout.expired() or self._cancel:
                 break
-            rate = options.byte_rate
-            wait = 0.01 if rate is None or self._file_left() <= 0 else 1.0 / rate
-            left = timeout.time_left()
-            time.sleep(max(0.0, min(wait, 0.05) if left is None else min(wait, 0.05, left)))
+            time.sleep(self._wait_for(cap - len(out), timeout.time_left()))
         return bytes(out)
 
     def write(self, data: bytes) -> int:

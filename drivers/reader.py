@@ -14,9 +14,9 @@ import serial
 from .config import DEFAULT_CONFIG, DecoderConfig
 from .decoder import StreamDecoder
 from .diagnose import diagnose
-from .formats import FrameFormat
+from .formats import FrameFormat, get_format
 from .frames import DecoderCounters, FrameBatch
-from .transport import DEFAULT_BAUD, check_url, open_serial
+from .transport import DEFAULT_BAUD, check_url, open_serial, read_chunk, read_size_for
 
 log = logging.getLogger(__name__)
 
@@ -25,10 +25,17 @@ log = logging.getLogger(__name__)
 class ReaderHealth:
     """A snapshot of the reader's state.
 
-    last_frame_time: host monotonic time (time.monotonic()) of the last decoded frame, or None.
-    reconnect_count: successful re-opens after the first open. last_error: the last port or
-    delivery error as text. diagnosis: a plain-words warning when the stream looks like another
-    format (drivers.diagnose), else None.
+    running: the thread is alive. connected: the port is open (False while unplugged and
+    being re-opened). last_frame_time / last_byte_time: host monotonic time (time.monotonic())
+    of the last decoded frame / received byte, or None; seconds_since_last_frame /
+    seconds_since_last_byte: their age when the snapshot was taken. disconnected_s: how long the
+    port has been away (since the failure, or since start if it never opened), None while
+    connected. reconnect_count: successful re-opens after the first open. last_error: the last
+    port or delivery error as text (kept after a reconnect; last_error_time says when).
+    diagnosis: a plain-words warning when the stream looks like another format
+    (drivers.diagnose), else None. state: "stopped", "disconnected", "silent" (open, but no
+    byte for silence_s) or "ok"; problem: one plain-words sentence for any state but "ok"
+    (what a service's /health shows when it reports itself degraded), else None.
     """
 
     running: bool
@@ -39,6 +46,13 @@ class ReaderHealth:
     last_error: str | None
     diagnosis: str | None
     dropped_batches: int
+    last_byte_time: float | None = None
+    seconds_since_last_byte: float | None = None
+    seconds_since_last_frame: float | None = None
+    disconnected_s: float | None = None
+    last_error_time: float | None = None
+    state: str = "ok"
+    problem: str | None = None
 
 
 class FrameReader:
@@ -65,12 +79,19 @@ class FrameReader:
         backoff_initial: float = 0.05,
         backoff_max: float = 2.0,
         name: str = "frame-reader",
+        latency: float = 0.05,
+        silence_s: float = 1.0,
     ) -> None:
         check_url(url, must_exist=False)
         self.url = url
         self.baudrate = baudrate
         self.read_size = read_size
         self.timeout = timeout
+        self.silence_s = silence_s
+        # Each read waits for about `latency` s of data at the configured rate (bounded by
+        # `timeout`): ~20 reads/s at the defaults, whatever the rate, instead of one per byte.
+        self.byte_rate = config.rate_hz * get_format(fmt).length
+        self.min_read = read_size_for(self.byte_rate, latency, read_size)
         self.backoff_initial = backoff_initial
         self.backoff_max = backoff_max
         self._on_batch = on_batch
@@ -84,7 +105,11 @@ class FrameReader:
         self._ever_connected = False
         self._reconnects = 0
         self._last_frame_time: float | None = None
+        self._last_byte_time: float | None = None
         self._last_error: str | None = None
+        self._last_error_time: float | None = None
+        self._away_since: float | None = time.monotonic()
+        self._connected_at: float | None = None
         self._dropped = 0
 
     def start(self) -> FrameReader:
@@ -118,35 +143,70 @@ class FrameReader:
 
     def health(self) -> ReaderHealth:
         with self._lock:
+            now = time.monotonic()
             counters = self._decoder.counters.copy()
+            running = self._thread.is_alive()
+            connected = self._connected
+            last_byte = self._last_byte_time
+            quiet_since = last_byte if last_byte is not None else self._connected_at
+            away = None if connected or self._away_since is None else now - self._away_since
+            if not running:
+                state, problem = "stopped", f"the reader of {self.url} is not running"
+            elif not connected:
+                state = "disconnected"
+                problem = f"{self.url} is disconnected ({away:.1f} s)" + (
+                    f": {self._last_error}" if self._last_error else ""
+                )
+            elif quiet_since is not None and now - quiet_since > self.silence_s:
+                state = "silent"
+                problem = f"{self.url} is open but has sent nothing for {now - quiet_since:.1f} s"
+            else:
+                state, problem = "ok", None
             return ReaderHealth(
-                running=self._thread.is_alive(),
-                connected=self._connected,
+                running=running,
+                connected=connected,
                 last_frame_time=self._last_frame_time,
                 reconnect_count=self._reconnects,
                 counters=counters,
                 last_error=self._last_error,
                 diagnosis=diagnose(counters, self._decoder.format),
                 dropped_batches=self._dropped,
+                last_byte_time=last_byte,
+                seconds_since_last_byte=None if last_byte is None else now - last_byte,
+                seconds_since_last_frame=None
+                if self._last_frame_time is None
+                else now - self._last_frame_time,
+                disconnected_s=away,
+                last_error_time=self._last_error_time,
+                state=state,
+                problem=problem,
             )
+
+    def _set_error(self, text: str) -> None:
+        """Record an error (call with the lock held)."""
+        self._last_error = text
+        self._last_error_time = time.monotonic()
 
     def _open(self) -> bool:
         try:
             port = open_serial(self.url, baudrate=self.baudrate, timeout=self.timeout)
         except (serial.SerialException, OSError) as exc:  # e.g. unplugged: retry
             with self._lock:
-                self._last_error = f"cannot open {self.url}: {exc}"
+                self._set_error(f"cannot open {self.url}: {exc}")
             return False
         except Exception as exc:  # noqa: BLE001 - malformed URL options: retrying cannot help
             with self._lock:
-                self._last_error = f"bad port URL {self.url!r}: {type(exc).__name__}: {exc}"
+                self._set_error(f"bad port URL {self.url!r}: {type(exc).__name__}: {exc}")
             self._stop.set()
             return False
         with self._lock:
             self._port = port
             self._connected = True
+            self._connected_at = time.monotonic()
+            self._away_since = None
             if self._ever_connected:
                 self._reconnects += 1
+                log.info("%s: re-opened (reconnect %d)", self.url, self._reconnects)
             self._ever_connected = True
         return True
 
@@ -158,9 +218,12 @@ class FrameReader:
             except Exception:  # noqa: BLE001 - the port is already broken
                 pass
         with self._lock:
+            if self._connected:
+                self._away_since = time.monotonic()
             self._connected = False
             if exc is not None:
-                self._last_error = f"{self.url}: {exc}"
+                self._set_error(f"{self.url}: {exc}")
+                log.warning("%s: port lost (%s); re-opening", self.url, exc)
             self._decoder.flush()
 
     def _deliver(self, batch: FrameBatch) -> None:
@@ -170,7 +233,7 @@ class FrameReader:
             except Exception as exc:  # noqa: BLE001 - a consumer bug must not kill the reader
                 log.exception("frame callback failed")
                 with self._lock:
-                    self._last_error = f"callback: {type(exc).__name__}: {exc}"
+                    self._set_error(f"callback: {type(exc).__name__}: {exc}")
         if self._queue is not None:
             try:
                 self._queue.put_nowait(batch)
@@ -189,9 +252,12 @@ class FrameReader:
                         continue
                 port = self._port
                 try:
-                    waiting = port.in_waiting
-                    data = port.read(min(max(waiting, 1), self.read_size))
-                except (serial.SerialException, OSError) as exc:
+                    data = read_chunk(
+                        port, self.min_read, self.read_size, self.byte_rate, self._stop.wait
+                    )
+                except Exception as exc:  # noqa: BLE001 - any port failure: close and re-open
+                    if not isinstance(exc, serial.SerialException | OSError):
+                        log.exception("%s: unexpected error from the port", self.url)
                     self._drop_port(exc)
                     # A port that opens but fails at once (a flapping device) backs off too:
                     # the delay restarts only once data has come through.
@@ -203,6 +269,7 @@ class FrameReader:
                 delay = self.backoff_initial
                 now = time.monotonic()
                 with self._lock:
+                    self._last_byte_time = now
                     batch = self._decoder.feed(data, host_time=now)
                     if len(batch):
                         self._last_frame_time = now

@@ -25,7 +25,7 @@ from .decoder import StreamDecoder
 from .errors import DriverInputError
 from .formats import FrameFormat
 from .frames import DecoderCounters
-from .transport import DEFAULT_BAUD, open_port
+from .transport import DEFAULT_BAUD, open_port, read_chunk, read_size_for
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,7 @@ def record(
     timeout: float = 0.05,
     progress: Callable[[RecordProgress], None] | None = None,
     progress_interval: float = 1.0,
+    latency: float = 0.05,
 ) -> RecordResult:
     """Record ``url`` to ``out_path`` until a limit, ``stop_event``, end of replay or Ctrl-C.
 
@@ -82,6 +83,11 @@ def record(
     _check_output(out)
     side = side_path(out)
     decoder = StreamDecoder(fmt, config)
+    # Each read waits for about `latency` s of data (at most `timeout`): one side-file line
+    # per read, ~20 a second, not one per handful of bytes.
+    byte_rate = config.rate_hz * decoder.format.length
+    min_read = read_size_for(byte_rate, latency, read_size)
+    pause = time.sleep if stop_event is None else stop_event.wait
     tmp = out.with_name(out.name + ".partial")
     tmp_side = side.with_name(side.name + ".partial")
     for path in (tmp, tmp_side):  # an unwritable output is bad input, found before the port opens
@@ -120,7 +126,7 @@ def record(
                         break
                     want = read_size if max_bytes is None else min(read_size, max_bytes - total)
                     try:
-                        data = port.read(min(max(port.in_waiting, 1), want))
+                        data = read_chunk(port, min(min_read, want), want, byte_rate, pause)
                     except (serial.SerialException, OSError) as exc:
                         stopped_by, failure = "disconnect", exc
                         break

@@ -15,6 +15,8 @@ import importlib
 import os
 import pkgutil
 import sys
+import time
+from collections.abc import Callable
 from typing import Any
 from urllib.parse import quote, unquote, urlencode, urlsplit
 
@@ -108,6 +110,38 @@ def open_port(
         raise DriverInputError(
             f"bad port URL or setting {url!r}: {type(exc).__name__}: {exc}"
         ) from None
+
+
+def read_size_for(byte_rate: float, latency_s: float, limit: int) -> int:
+    """Bytes a read should wait for: ``latency_s`` of data at ``byte_rate``, 1 to ``limit``."""
+    return int(min(max(1.0, byte_rate * latency_s), limit))
+
+
+def read_chunk(
+    port: serial.SerialBase,
+    min_bytes: int,
+    max_bytes: int,
+    byte_rate: float | None = None,
+    pause: Callable[[float], object] = time.sleep,
+) -> bytes:
+    """One read of a useful size, never a busy loop.
+
+    Less than ``min_bytes`` waiting and ``byte_rate`` known: ``pause`` until about
+    ``min_bytes`` should be there (at most the port's timeout), then take what is waiting.
+    Then, or without ``byte_rate``, read everything waiting (up to ``max_bytes``), or when less
+    is waiting block until ``min_bytes`` have come or the port's timeout expires. pyserial's
+    posix ``read(n)`` wakes at every arrival from the kernel (each USB packet, each write to a
+    pty); the pause makes that about 1/latency wake-ups a second. Raises what the port raises.
+    """
+    waiting = port.in_waiting
+    if byte_rate and waiting < min_bytes:
+        timeout = getattr(port, "timeout", None)
+        timeout = 1.0 if timeout is None else timeout
+        pause(min((min_bytes - waiting) / byte_rate, timeout))
+        waiting = port.in_waiting
+        if waiting:
+            return port.read(min(waiting, max_bytes))
+    return port.read(max(1, min(max(waiting, min_bytes), max_bytes)))
 
 
 def replay_url(path: str | os.PathLike[str], **options: object) -> str:

@@ -45,8 +45,10 @@ def test_record_replay_gives_the_same_bytes_and_frames(capture, tmp_path) -> Non
 def test_record_limits_and_stop(capture, tmp_path) -> None:
     r = record(replay_url(capture, speed="max"), tmp_path / "a.bin", max_bytes=1000)
     assert r.stopped_by == "max_bytes" and (tmp_path / "a.bin").stat().st_size == 1000
-    r = record(replay_url(capture, speed=1.0), tmp_path / "b.bin", duration_s=0.2)
+    r = record(replay_url(capture, speed=1.0), tmp_path / "b.bin", duration_s=0.5)
     assert r.stopped_by == "duration" and 0 < r.bytes < capture.stat().st_size
+    # one side-file line per ~50 ms of data at the configured rate, not one per few bytes
+    assert r.chunks <= 15 and r.bytes / r.chunks >= 1000, (r.chunks, r.bytes)
     stop = threading.Event()
     stop.set()
     r = record(replay_url(capture), tmp_path / "c.bin", stop_event=stop)

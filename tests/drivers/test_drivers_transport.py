@@ -144,7 +144,13 @@ def test_reader_retries_a_missing_device(tmp_path) -> None:
     time.sleep(0.1)
     h = reader.health()
     assert h.running and not h.connected and "cannot open" in h.last_error
+    # what a service needs to say it is degraded, without interpreting the fields itself
+    assert h.state == "disconnected" and h.disconnected_s >= 0.09
+    assert "ttyMISSING is disconnected" in h.problem and "cannot open" in h.problem
+    assert h.last_byte_time is None and h.seconds_since_last_byte is None
+    assert h.last_error_time is not None
     assert reader.stop(timeout=1.0)
+    assert reader.health().state == "stopped" and "not running" in reader.health().problem
 
 
 def test_reader_backs_off_when_the_port_opens_but_fails_at_once(monkeypatch) -> None:
@@ -192,3 +198,58 @@ def test_stop_from_the_callback_ends_the_reader_cleanly(capture) -> None:
     assert _wait_until(lambda: not reader.health().running, timeout=2.0)
     assert len(got) == 1 and reader.health().last_error is None
     assert reader.stop()
+
+
+def test_replay_at_real_speed_sleeps_instead_of_spinning(tmp_path) -> None:
+    # 1 kHz Format A (36,000 bytes/s) read in ~50 ms pieces: the handler must sleep until the
+    # bytes are due, not poll every 1/36,000 s.
+    data, _ = make_frames(700, seed=5)
+    path = tmp_path / "rt.bin"
+    path.write_bytes(data)
+    port = open_port(replay_url(path, speed=1, rate=1000), timeout=0.1)
+    got = bytearray()
+    reads = 0
+    c0, t0 = time.thread_time(), time.monotonic()
+    while len(got) < len(data) and time.monotonic() - t0 < 5:
+        got += port.read(1800)
+        reads += 1
+    cpu, wall = time.thread_time() - c0, time.monotonic() - t0
+    port.close()
+    assert bytes(got) == data
+    assert 0.6 <= wall < 1.5 and reads <= 20
+    assert cpu < 0.05 * wall, (cpu, wall)
+
+
+def test_read_chunk_waits_for_a_useful_size() -> None:
+    from drivers.transport import read_chunk
+
+    class Port:
+        timeout = 0.05
+
+        def __init__(self) -> None:
+            self.waiting = 10
+            self.pauses: list[float] = []
+            self.sizes: list[int] = []
+
+        @property
+        def in_waiting(self) -> int:
+            return self.waiting
+
+        def read(self, size: int) -> bytes:
+            self.sizes.append(size)
+            return b"x" * min(size, self.waiting)
+
+    port = Port()
+
+    def pause(s: float) -> None:
+        port.pauses.append(s)
+        port.waiting = 1800
+
+    assert len(read_chunk(port, 1800, 4096, 36_000.0, pause)) == 1800
+    assert port.pauses == [pytest.approx((1800 - 10) / 36_000)] and port.sizes == [1800]
+    port.waiting = 9000  # a backlog is taken at once, no pause, up to the maximum
+    assert len(read_chunk(port, 1800, 4096, 36_000.0, pause)) == 4096
+    assert len(port.pauses) == 1
+    port.waiting = 0  # without a byte rate: one blocking read of the minimum size
+    read_chunk(port, 1800, 4096)
+    assert port.sizes[-1] == 1800
