@@ -8,10 +8,13 @@ the residuals. The steps:
 1. models: the seed model per triad plus requested catalogue/plugin effects;
 2. prior: the previous calibration, or one derived from the data (common scale from the median
    norm, everything else neutral);
-3. observability at the prior: refuse designs that cannot show scale and bias;
+3. observability decided on real noise: with noise columns (*_sem, else *_std) at the prior;
+   without them structural rank only, an LM fit, the noise from its residuals, then the
+   decision -- never on the provisional sigma. Designs that cannot show scale and bias are
+   refused; rank decides, not counting, and an exactly determined design is estimated with a
+   note that the residual cannot check it;
 4. solve on the observable directions (LM; or MCS-NAFSA/SAFSA/OAFSA, optionally LM-polished);
-5. without window std columns, estimate the noise from the residuals and solve again;
-6. observability and covariance at the solution.
+5. observability and covariance at the solution.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
 from recal.model import Model, ParameterLayout
-from recal.observability import ObservabilityReport, analyze, generic_rank
+from recal.observability import INFO_MIN, ROTATION_REASON, ObservabilityReport, analyze
 from recal.phases import paper_phases, whitened_phase
 from recal.positions import Positions
 from recal.problem import Problem
@@ -103,7 +106,7 @@ class CalibrationResult:
         ind_after = self.problem.indicator(self.theta[None])
         out = {}
         for n in self.problem.invariant_names:
-            noise = self.problem.sigma_source.get(n) == "std columns"
+            noise = self.problem.noise_known_for(n)
             out[n] = {
                 "unit": UNITS[n],
                 "reference": self.problem.reference(n),
@@ -112,11 +115,25 @@ class CalibrationResult:
                 "noise_floor": float(np.sqrt(np.mean(self.problem.sigma[n] ** 2)))
                 if noise
                 else None,
+                "noise_source": self.problem.sigma_source.get(n),
                 "indicator_eq14_before": float(ind_before[n][0]),
                 "indicator_eq14_after": float(ind_after[n][0]),
                 "per_position": [float(v) for v in after[n][0]],
             }
         return out
+
+    def uncertainty_kind(self) -> str:
+        """What the 1-sigma values mean, and which noise they come from."""
+        sources = ", ".join(sorted(set(self.problem.sigma_source.values())))
+        if self.problem.noise_known:
+            return (
+                f"Gauss-Newton 1-sigma from the window noise ({sources}) propagated through the "
+                "invariants (scaled by max(1, chi2_red)); measurement uncertainty of each "
+                "estimated value"
+            )
+        if self.observability.redundancy == 0:
+            return "unknown: no noise columns and no redundancy to estimate the noise from"
+        return f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})"
 
     def to_json_dict(self) -> dict[str, Any]:
         terms = self.terms
@@ -126,15 +143,11 @@ class CalibrationResult:
             "uncertainty": layout_like(
                 self.uncertainty, lambda v: None if not np.isfinite(v) else float(v), terms
             ),
-            "uncertainty_kind": (
-                "Gauss-Newton 1-sigma from the window noise propagated through the invariants "
-                "(scaled by max(1, chi2_red)); measurement uncertainty of each estimated value"
-                if self.problem.noise_known
-                else "Gauss-Newton 1-sigma with the noise estimated from the fit residuals"
-            ),
+            "uncertainty_kind": self.uncertainty_kind(),
+            "noise_source": dict(self.problem.sigma_source),
             "observability": self.observability.to_json_dict(),
             "residuals": self.residual_summary(),
-            "chi2_red": self.chi2_red,
+            "chi2_red": self.chi2_red if np.isfinite(self.chi2_red) else None,
             "method": self.method,
             "sensor": "both" if len(self.problem.sensors) == 2 else self.problem.sensors[0],
             "positions": self.problem.M,
@@ -233,20 +246,68 @@ def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: flo
 MIN_EARTH_RATE_CONTRAST = 50.0
 
 
-def _earth_rate_invisible(positions: Positions) -> str | None:
+def scale_noise_needed(n_positions: int, relative: float = 1e-3) -> float:
+    """Window-mean gyro noise, deg/h, that pins each scale factor to ``relative`` from
+    ``n_positions`` random orientations.
+
+    d|w|/d(ln K_i) = -Omega u_i^2; for uniform directions the information matrix
+    (Omega / sigma)^2 sum u_i^2 u_j^2 has an inverse diagonal of 6 / M, so
+    sd(ln K_i) ~ sigma / Omega * sqrt(6 / M). Estimating bias and misalignment alongside costs
+    about a factor 2 (checked against :func:`recal.observability.analyze`), hence sqrt(M / 24).
+    """
+    return relative * OMEGA_IE_DEG_H * np.sqrt(n_positions / 24.0)
+
+
+def _earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None) -> str | None:
     """Why Earth rate cannot calibrate this gyro, or None: the outputs must change with
-    orientation well beyond the window noise."""
+    orientation well beyond the window-mean noise.
+
+    The reason names the cause -- the contrast, the noise and the hold length -- and what would
+    be needed: the noise of a window mean falls as 1/sqrt(hold) (white noise), so the contrast
+    grows as sqrt(hold). ``scale`` (output units per deg/h, e.g. from the prior) expresses the
+    noise in deg/h and gives the hold that pins the scale factors to their typical change;
+    without it the noise stays in output units.
+    """
     noise = positions.std_of_mean("gyro")
     if noise is None or len(positions) < 3:
         return None
     spread = np.ptp(positions.gyro, axis=0)
-    contrast = float(np.max(spread / np.maximum(np.median(noise, axis=0), 1e-300)))
+    sem = np.maximum(np.median(noise, axis=0), 1e-300)  # (3,) typical window-mean noise
+    axis = int(np.argmax(spread / sem))
+    contrast = float(spread[axis] / sem[axis])
     if contrast >= MIN_EARTH_RATE_CONTRAST:
         return None
+    gain = 1.0 if scale is None else abs(float(np.asarray(scale, float)[axis]))
+    unit = "output units" if scale is None else "deg/h"
+    noise_in = sem[axis] / gain
+    cols = positions.columns
+    hold = (
+        float(np.median(cols["end_s"] - cols["start_s"]))
+        if "start_s" in cols and "end_s" in cols
+        else None
+    )
+
+    def holds_for(factor: float) -> str:  # white noise: sigma ~ 1/sqrt(hold)
+        return (
+            f"holds about {factor:.3g}x longer"
+            if hold is None
+            else f"holds of about {hold * factor:.3g} s"
+        )
+
+    M = len(positions)
+    pinned = scale_noise_needed(M)
+    visible = holds_for((MIN_EARTH_RATE_CONTRAST / contrast) ** 2)
+    then = f"pinning the scale factors to 1000 ppm from {M} positions then needs a window-mean noise of about {pinned:.2g} deg/h"
+    if scale is not None:
+        then += f" ({holds_for((noise_in / pinned) ** 2)})"
+    caveat = (
+        " if the noise averages down" if positions.noise_source("gyro") == "sem columns" else ""
+    )
     return (
-        f"gyro outputs differ between positions by only {contrast:.1f}x the window noise: "
-        f"Earth rate ({OMEGA_IE_DEG_H:.5f} deg/h) is not visible, so it cannot calibrate this "
-        "gyro (typical of MEMS gyros)"
+        f"gyro outputs differ between positions by only {contrast:.3g}x the window-mean noise "
+        f"({noise_in:.3g} {unit}" + ("" if hold is None else f" from {hold:.3g} s holds") + "): "
+        f"Earth rate ({OMEGA_IE_DEG_H:.5f} deg/h) is not visible; it needs "
+        f"{MIN_EARTH_RATE_CONTRAST:.0f}x: {visible} at this noise{caveat}; {then}"
     )
 
 
@@ -259,6 +320,39 @@ def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...
     if sensor in ("gyro", "accel"):
         return (sensor,)
     raise RecalInputError(f"--sensor must be gyro, accel or both, not {sensor!r}")
+
+
+def _decided(report: ObservabilityReport, when: str = "") -> ObservabilityReport:
+    """``report``, or :class:`RecalInputError` when it cannot show scale and bias."""
+    if report.verdict == "insufficient":
+        where = f" {when}" if when else ""
+        raise RecalInputError(f"unusable design{where}: {report.message}")
+    return report
+
+
+def _same_span(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
+    """True when the orthonormal column sets ``a`` and ``b`` span the same subspace."""
+    if a.shape != b.shape:
+        return False
+    return bool(np.all(np.linalg.svd(a.T @ b, compute_uv=False) > 1 - tol)) if a.size else True
+
+
+def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[str]:
+    """What the user must know about what was held and whether the fit can be checked."""
+    notes = []
+    reasons: dict[str, list[str]] = {}
+    for d, r in zip(report.held_directions, report.held_reasons, strict=True):
+        reasons.setdefault(r, []).append(d)
+    for r, dirs in reasons.items():
+        if r != ROTATION_REASON:  # the rotations are expected and listed in observability
+            notes.append(f"held at the prior ({len(dirs)} direction(s): {'; '.join(dirs)}): {r}")
+    if report.redundancy == 0:
+        notes.append(
+            f"exactly determined: {problem.n_residuals} invariant equations for {report.rank} "
+            "observable directions, so the fit makes every residual zero and the residual "
+            "cannot check it; add positions to check the fit"
+        )
+    return notes
 
 
 def calibrate(
@@ -277,7 +371,8 @@ def calibrate(
         raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
     sensors = _resolve_sensors(positions, opt.sensor)
     notes: list[str] = []
-    problem_gyro = _earth_rate_invisible(positions) if "gyro" in sensors else None
+    prior_scale = opt.prior.values.get("gyro.scale") if opt.prior is not None else None
+    problem_gyro = _earth_rate_invisible(positions, prior_scale) if "gyro" in sensors else None
     if problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
         sensors = ("accel",)  # the default calibrates what the data can show
         notes.append(f"gyro not calibrated: {problem_gyro}")
@@ -294,78 +389,82 @@ def calibrate(
         theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
         prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
     problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0)
-    needed = generic_rank(problem) + 1
-    if problem.n_residuals < needed:
-        raise RecalInputError(
-            f"{problem.M} positions give {problem.n_residuals} invariant equations but "
-            f"{needed - 1} coefficients are identifiable: need at least {needed} equations"
-        )
     typical = layout.typical(theta0)
-    report = analyze(problem, theta0, typical)
-    if report.verdict == "insufficient":
-        raise RecalInputError(f"unusable design: {report.message}")
     evaluations = 0
-    mcs = None
-    theta = theta0
-    for attempt in range(2):  # second pass after estimating the noise from the residuals
-        T = typical[:, None] * report.basis
-        if opt.method == "lm":
-            lm = solve_lm(problem, theta0, T)
-            theta, evaluations = lm.theta, evaluations + lm.evaluations
+    theta_fit: np.ndarray | None = None  # an LM optimum on report.basis, when one exists
+    if problem.noise_known:
+        report = _decided(analyze(problem, theta0, typical))
+    else:
+        # Noise first: the provisional sigma is no noise information, so judge structural rank
+        # only, fit, estimate the noise from the residuals, and decide on that.
+        structural = _decided(analyze(problem, theta0, typical, info_min=0.0))
+        if structural.redundancy > 0:
+            lm = solve_lm(problem, theta0, typical[:, None] * structural.basis)
+            evaluations += lm.evaluations
+            problem = problem.with_sigma_from_residuals(lm.theta, structural.rank)
+            report = _decided(analyze(problem, lm.theta, typical), "on the estimated noise")
+            if len(problem.invariant_names) == 1 and _same_span(report.basis, structural.basis):
+                theta_fit = lm.theta  # a uniform sigma rescales chi2 but cannot move the optimum
         else:
-            if opt.paper:
-                phases = paper_phases(layout, typical)
-            else:
+            report = structural  # no redundancy: the noise cannot be estimated
+    mcs = None
+    T = typical[:, None] * report.basis
+    if opt.method == "lm":
+        if theta_fit is None:
+            lm = solve_lm(problem, theta0, T)
+            theta_fit, evaluations = lm.theta, evaluations + lm.evaluations
+        theta = theta_fit
+    else:
+        if opt.paper:
+            phases = paper_phases(layout, typical)
+        else:
 
-                def phases(base: np.ndarray, problem=problem, report=report) -> list:
-                    mean = base.mean(axis=0)
-                    return [whitened_phase(problem, mean, typical, report, problem.objective(base))]
+            def phases(base: np.ndarray, problem=problem, report=report) -> list:
+                mean = base.mean(axis=0)
+                return [whitened_phase(problem, mean, typical, report, problem.objective(base))]
 
-            cfg = opt.swarm_config
-            if opt.paper and cfg is None and opt.method == "nafsa":
-                cfg = solver_for("nafsa")[1](cf_mode="literal")
-            threshold = opt.indicator_threshold
-            if threshold is None:
-                threshold = 1e-8 if opt.paper else 0.0
-            mcs = run_mcs(
-                problem,
-                theta0,
-                phases,
-                opt.method,
-                opt.mc_runs,
-                opt.seed,
-                cfg,
-                opt.cycles,
-                progress=progress if attempt == 0 else None,
-                indicator_threshold=threshold,
-            )
-            theta, evaluations = mcs.mean, evaluations + mcs.evaluations
-            if opt.polish:
-                lm = solve_lm(problem, theta, T)
-                theta, evaluations = lm.theta, evaluations + lm.evaluations
-        if problem.noise_known or attempt == 1:
-            break
-        problem = problem.with_sigma_from_residuals(theta, report.rank)
-        if len(problem.invariant_names) == 1:
-            break  # one invariant: a uniform sigma rescales chi2 but cannot move the optimum
-        report = analyze(problem, theta, typical)
-        if report.verdict == "insufficient":
-            raise RecalInputError(f"unusable design: {report.message}")
-    report = analyze(problem, theta, typical)
-    if report.verdict == "insufficient":  # the design looked fine at the prior but not here
-        raise RecalInputError(f"unusable design at the solution: {report.message}")
+        cfg = opt.swarm_config
+        if opt.paper and cfg is None and opt.method == "nafsa":
+            cfg = solver_for("nafsa")[1](cf_mode="literal")
+        threshold = opt.indicator_threshold
+        if threshold is None:
+            threshold = 1e-8 if opt.paper else 0.0
+        mcs = run_mcs(
+            problem,
+            theta0,
+            phases,
+            opt.method,
+            opt.mc_runs,
+            opt.seed,
+            cfg,
+            opt.cycles,
+            progress=progress,
+            indicator_threshold=threshold,
+        )
+        theta, evaluations = mcs.mean, evaluations + mcs.evaluations
+        if opt.polish:
+            lm = solve_lm(problem, theta, T)
+            theta, evaluations = lm.theta, evaluations + lm.evaluations
+    info_min = INFO_MIN if report.noise_decided else 0.0
+    report = _decided(analyze(problem, theta, typical, info_min=info_min), "at the solution")
     T = typical[:, None] * report.basis
     cov, chi2_red = covariance(problem, theta, T)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     status_flat = np.where(report.estimated, "estimated", "held")
     sd = np.where(report.estimated, sd, np.nan)
+    notes += _observability_notes(report, problem)
     if opt.paper and opt.method != "lm":
         notes.append(
             "paper mode: the swarm also searched the directions no norm can see "
             f"({'; '.join(report.held_directions) or 'none'}); their values are arbitrary"
         )
     if not problem.noise_known:
-        notes.append("no *_std columns: noise estimated from the fit residuals")
+        notes.append(
+            "no *_std or *_sem columns: noise estimated from the fit residuals"
+            if report.redundancy > 0
+            else "no *_std or *_sem columns and no redundancy: the noise and the uncertainty "
+            "are unknown"
+        )
     if problem.noise_known and chi2_red > 1e3:
         notes.append(
             f"chi2_red = {chi2_red:.3g}: the invariants are far off; check --latitude, the "

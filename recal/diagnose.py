@@ -138,7 +138,7 @@ def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
     rows = []
     for n in fit.problem.invariant_names:
         r = raw[n][0]
-        known = fit.problem.sigma_source.get(n) == "std columns"
+        known = fit.problem.noise_known_for(n)
         floor = float(np.sqrt(np.mean(fit.problem.sigma[n] ** 2))) if known else None
         rms = float(np.sqrt(np.mean(r**2)))
         worst = np.argsort(-np.abs(r / fit.problem.sigma[n]))[:3]

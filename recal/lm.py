@@ -64,14 +64,22 @@ def covariance(
 ) -> tuple[np.ndarray, float]:
     """Gauss-Newton covariance of theta (D, D) and the reduced chi-square at ``theta``.
 
-    With window noise known (std columns), the covariance is scaled by max(1, chi2_red) so that
+    With window noise known (std or sem columns), the covariance is scaled by max(1, chi2_red) so that
     an unmodelled effect widens it instead of being hidden; with noise estimated from the
-    residuals chi2_red is ~1 by construction.
+    residuals chi2_red is ~1 by construction. Without redundancy (as many observable directions
+    as equations) chi2_red is NaN, and so is the covariance unless the noise is known.
     """
-    J = jacobian(problem, theta, transform.T)
+    J = jacobian(problem, theta, transform.T)  # (R, k): memory linear in the positions
     r = problem.residuals(theta[None])[0]
-    dof = max(problem.n_residuals - transform.shape[1], 1)
-    chi2_red = float(r @ r / dof)
-    cov_z = np.linalg.pinv(J.T @ J)
-    scale = max(1.0, chi2_red) if problem.noise_known else chi2_red
+    dof = problem.n_residuals - transform.shape[1]
+    # exactly determined (dof 0): every residual is fitted away, so chi2 says nothing
+    chi2_red = float(r @ r / dof) if dof > 0 else float("nan")
+    # pinv of the k x k normal matrix through the economy SVD of J: (V S^-2 V^T)
+    _, s, Vt = np.linalg.svd(J, full_matrices=False)
+    inv = np.where(s > 1e-12 * s.max(), 1.0 / np.maximum(s, 1e-300) ** 2, 0.0) if s.size else s
+    cov_z = (Vt.T * inv) @ Vt
+    if problem.noise_known:
+        scale = max(1.0, chi2_red) if dof > 0 else 1.0
+    else:  # noise from the residuals: unknown without redundancy
+        scale = chi2_red
     return transform @ cov_z @ transform.T * scale, chi2_red

@@ -187,8 +187,13 @@ def run_mcs(
     workers = _default_workers(n_batches) if workers is None else max(1, min(workers, n_batches))
     outcomes: list[_BatchOutcome] = []
     if workers == 1:
-        for b in range(n_batches):
-            outcomes.append(_run_batch(job, b, progress))
+        from threadpoolctl import threadpool_limits  # 70 ms to import: only on this path
+
+        # the same one-thread BLAS as the workers: the matrices are tiny, and a BLAS pool
+        # spinning on a loaded machine costs 2-3x the wall time (restored on return)
+        with threadpool_limits(1, user_api="blas"):
+            for b in range(n_batches):
+                outcomes.append(_run_batch(job, b, progress))
     else:
         global _FORK_JOB
         _FORK_JOB = job

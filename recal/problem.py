@@ -25,9 +25,17 @@ from recal.model import Model, ParameterLayout
 from recal.positions import Positions
 from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 
-#: Residual sigma used before any noise information exists (positions without *_std columns):
-#: only the relative weight of the invariants matters and it is re-estimated from the residuals.
+#: Residual sigma used before any noise information exists (positions without *_std or *_sem
+#: columns): it only sets the relative weight of the invariants for the first fit and is then
+#: re-estimated from the residuals. Observability is never decided on it (only structural rank).
 PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01}
+#: Positions.noise_source label -> sigma_source label of the invariants it feeds.
+COLUMN_SOURCES = {
+    "sem columns": "sem columns",
+    "std columns": "std columns (white-noise assumption)",
+}
+#: sigma_source labels that mean the noise is known from the windows.
+KNOWN_SOURCES = frozenset(COLUMN_SOURCES.values()) | {"sem and std columns"}
 INVARIANT_SENSORS = {"gyro_norm": ("gyro",), "accel_norm": ("accel",), "dot": ("gyro", "accel")}
 
 
@@ -41,8 +49,11 @@ class Problem:
         latitude_deg, height_m: site, for gravity and the dot-product reference.
         use_dot: include the gyro-accel dot-product invariant when both triads are present.
         sigma: invariant name -> (M,) 1-sigma of the raw residual (|x| - ref, or w.f - ref).
-        sigma_source: invariant name -> "std columns" (propagated window noise), "provisional"
-            (no noise information yet) or "residuals" (re-estimated from a fit).
+        sigma_source: invariant name -> where sigma comes from: "sem columns" (window standard
+            errors, correlated noise included), "std columns (white-noise assumption)"
+            (std / sqrt(samples)), "sem and std columns" (a dot product of one of each),
+            "provisional" (no noise information yet: relative weights only, never decide on it)
+            or "residuals" (re-estimated from a fit).
         ctx: context columns for terms (temperature, time, specific force).
     """
 
@@ -112,8 +123,12 @@ class Problem:
 
     @property
     def noise_known(self) -> bool:
-        """True when every invariant's sigma comes from the windows' std columns."""
-        return all(v == "std columns" for v in self.sigma_source.values())
+        """True when every invariant's sigma comes from the windows' std or sem columns."""
+        return all(self.noise_known_for(n) for n in self.sigma_source)
+
+    def noise_known_for(self, name: str) -> bool:
+        """True when invariant ``name``'s sigma comes from the windows' noise columns."""
+        return self.sigma_source.get(name) in KNOWN_SOURCES
 
     # ---- structure ----------------------------------------------------------------------
     @property
@@ -244,16 +259,19 @@ class Problem:
 
     # ---- noise --------------------------------------------------------------------------
     def propagated_sigma(self, theta: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-        """Window-mean noise (from *_std columns) propagated to each invariant at ``theta``.
+        """Window-mean noise (:meth:`Positions.std_of_mean`: *_sem columns, else *_std /
+        sqrt(samples)) propagated to each invariant at ``theta``.
 
-        Falls back to :data:`PROVISIONAL_SIGMA` when a triad has no std columns; the caller then
-        re-estimates the noise from the residuals (:meth:`sigma_from_residuals`).
+        Falls back to :data:`PROVISIONAL_SIGMA` when a triad has neither; the caller then
+        re-estimates the noise from the residuals (:meth:`with_sigma_from_residuals`).
         """
         x = {k: v[0] for k, v in self.physical(theta[None]).items()}
         sl = self.layout.model_slices()
         sd_in: dict[str, np.ndarray | None] = {}
+        kind: dict[str, str] = {}
         for m in self.models:
             sd = self.positions.std_of_mean(m.sensor)
+            kind[m.sensor] = COLUMN_SOURCES.get(self.positions.noise_source(m.sensor) or "", "")
             if sd is not None:
                 # output noise -> input units through the local gain d N / d x ~ K_eff
                 step = np.abs(x[m.sensor]) * 1e-6 + 1e-9
@@ -271,7 +289,8 @@ class Problem:
                 out[n] = np.full(self.M, PROVISIONAL_SIGMA[n])
                 source[n] = "provisional"
                 continue
-            source[n] = "std columns"
+            kinds = {kind[s] for s in needed}
+            source[n] = kinds.pop() if len(kinds) == 1 else "sem and std columns"
             if n == "dot":
                 w, f = x["gyro"], x["accel"]
                 var = np.sum(f**2 * sd_in["gyro"] ** 2 + w**2 * sd_in["accel"] ** 2, axis=1)
@@ -283,12 +302,12 @@ class Problem:
         return out, source
 
     def with_sigma_from_residuals(self, theta: np.ndarray, n_params: int) -> Problem:
-        """Replace every sigma not known from std columns by the dof-corrected residual RMS."""
+        """Replace every sigma not known from noise columns by the dof-corrected residual RMS."""
         raw = self.raw_residuals(theta[None])
         dof_frac = max(1.0 - n_params / max(self.n_residuals, 1), 0.05)
         out, source = dict(self.sigma), dict(self.sigma_source)
         for n, r in raw.items():
-            if source.get(n) == "std columns":
+            if self.noise_known_for(n):
                 continue
             rms = float(np.sqrt(np.mean(r[0] ** 2) / dof_frac))
             out[n] = np.full(self.M, max(rms, 1e-12 * abs(self.reference(n)) + 1e-300))
