@@ -1,7 +1,7 @@
 """``recal calibrate``: coefficients, status, uncertainty and observability from positions.
 
-The engine (and scipy) is imported when a command runs, not when the parser is built, so
-``recal --help`` and the light subcommands start fast.
+Only argparse is imported to build the parser: numpy, the engine and scipy are imported when
+the command runs, so ``recal --help`` and the other subcommands start fast.
 """
 
 from __future__ import annotations
@@ -10,21 +10,6 @@ import argparse
 import json
 import sys
 from typing import TYPE_CHECKING
-
-import numpy as np
-
-from recal.errors import RecalInputError
-from recal.swarm import SwarmConfig
-from recal.terms import catalogue_terms
-from service.cli.common import (
-    atomic_write,
-    load_coefficients,
-    load_plugin,
-    load_positions,
-    parse_effects,
-    print_json,
-    progress_bar,
-)
 
 if TYPE_CHECKING:
     from recal.calibrate import CalibrationOptions, CalibrationResult
@@ -84,6 +69,10 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
 
 def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
     from recal.calibrate import CalibrationOptions
+    from recal.errors import RecalInputError
+    from recal.swarm import SwarmConfig
+    from recal.terms import catalogue_terms
+    from service.cli.common import load_coefficients, load_plugin, parse_effects
 
     plugin_terms = [t for path in args.plugin for t in load_plugin(path)]
     terms = {**catalogue_terms(), **{t.name: t for t in plugin_terms}}
@@ -144,6 +133,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run_calibration(args: argparse.Namespace) -> CalibrationResult:
     from recal.calibrate import calibrate
+    from service.cli.common import load_positions, progress_bar
 
     options = options_from_args(args)
     positions = load_positions(args.positions)
@@ -157,6 +147,8 @@ def run_calibration(args: argparse.Namespace) -> CalibrationResult:
 
 
 def run(args: argparse.Namespace) -> int:
+    from service.cli.common import atomic_write, print_json
+
     result = run_calibration(args)
     doc = result.to_json_dict()
     if args.output:
@@ -174,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
 
 def format_result(r: CalibrationResult) -> str:
     """Human-readable report: one line per coefficient, then residuals and observability."""
+    import numpy as np
+
     lines = [
         f"recal calibrate: {r.method}, {r.problem.M} positions, sensor "
         f"{'+'.join(r.problem.sensors)}, latitude {r.problem.latitude_deg:g} deg "

@@ -8,12 +8,14 @@ import os
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from recal.coefficients import CoefficientSet
-from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.terms import Term
+from recal.errors import RecalInputError  # a plain exception class: imports nothing
+
+if TYPE_CHECKING:
+    from recal.coefficients import CoefficientSet
+    from recal.positions import Positions
+    from recal.terms import Term
 
 
 def read_bytes(path: str | os.PathLike[str], what: str = "file") -> bytes:
@@ -62,10 +64,14 @@ def _umask() -> int:
 
 
 def load_positions(path: str) -> Positions:
+    from recal.positions import Positions
+
     return Positions.from_csv_text(read_text(path, "positions file"), source=str(path))
 
 
 def load_coefficients(path: str, terms: dict[str, Term] | None = None) -> CoefficientSet:
+    from recal.coefficients import CoefficientSet
+
     text = read_text(path, "coefficients file")
     try:
         data = json.loads(text)
@@ -79,6 +85,8 @@ def load_coefficients(path: str, terms: dict[str, Term] | None = None) -> Coeffi
 
 def load_plugin(path: str) -> list[Term]:
     """Import a user's Python file defining ``TERMS = [Term, ...]`` (see recal.terms)."""
+    from recal.terms import Term
+
     p = Path(path)
     if not p.is_file():
         raise RecalInputError(f"plugin {p} does not exist")

@@ -15,10 +15,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
-from recal.errors import RecalInputError
-
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
@@ -41,6 +37,7 @@ def _say(msg: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from recal.errors import RecalInputError
     from recal.session import simulate_session
     from recal.simulate import TemperatureSpec
     from service.capture_sim import kvh_like_truth, session_to_kvh
@@ -113,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_summary(service, truth) -> None:
+    import numpy as np
+
     store = service.store
     history = list(reversed(store.history(limit=50)))
     print(f"{'version':>7s} {'trigger':>8s} {'positions':>9s} {'accepted':>8s} "

@@ -4,6 +4,10 @@ Each subcommand lives in its own module under ``service.cli`` and exposes
 ``register(subparsers) -> argparse.ArgumentParser``; the parser's default ``func`` takes the
 parsed namespace and returns the process exit code.
 
+Building the parser imports only argparse-level modules: each subcommand module imports numpy,
+the engine and the drivers inside its ``run``, so ``recal --help`` and a command pay only for
+what they use.
+
 Exit codes (conventions section 8): 0 success, 2 bad input or unusable design (one line on
 stderr, no traceback), 1 internal error.
 """
@@ -14,9 +18,6 @@ import argparse
 import importlib
 import os
 import sys
-import traceback
-
-from recal.errors import RecalInputError
 
 # Module names under service.cli, in the order they appear in --help.
 SUBCOMMANDS: tuple[str, ...] = (
@@ -35,6 +36,8 @@ class CliInputError(Exception):
 
 
 def _input_error_types() -> tuple[type[BaseException], ...]:
+    from recal.errors import RecalInputError  # imported after parsing: --help stays light
+
     types: list[type[BaseException]] = [RecalInputError, CliInputError]
     try:  # drivers may define their own input error; it is optional here
         from drivers.errors import DriverInputError  # type: ignore[import-not-found]
@@ -81,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except Exception as exc:  # noqa: BLE001 - the one place internal errors become exit code 1
         if args.debug or os.environ.get("RECAL_DEBUG"):
+            import traceback
+
             traceback.print_exc()
         print(
             f"recal {args.command}: internal error: {type(exc).__name__}: {exc} "

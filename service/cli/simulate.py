@@ -12,15 +12,24 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    from recal.coefficients import CoefficientSet
+    from recal.positions import Positions
+    from recal.simulate import NoiseSpec, TemperatureSpec
+    from recal.terms import Term
 
-from recal.coefficients import CoefficientSet
-from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.simulate import DESIGNS, NoiseSpec, TemperatureSpec, simulate_positions
-from recal.terms import Term, catalogue_terms
-from service.cli.common import atomic_write, load_coefficients, parse_effects
+#: recal.simulate.DESIGNS and the NoiseSpec / TemperatureSpec defaults, repeated here so that
+#: building the parser imports no numpy (a test checks they match).
+DESIGNS = ("24", "random", "vessel")
+DEFAULT_ARW_DEG_RT_H = 0.0005
+DEFAULT_VRW_UG_RT_HZ = 20.0
+DEFAULT_WINDOW_S = 100.0
+DEFAULT_SLEW_S = 30.0
+DEFAULT_RATE_HZ = 1000.0
+DEFAULT_TEMP_START_C = 20.0
+DEFAULT_TEMP_SLOPE_C_PER_H = 2.0
 
 #: Hold and slew lengths of a capture when not given: a sample-level session is held in memory,
 #: so shorter than the window-mean defaults (100 s windows, 30 s between them).
@@ -63,40 +72,40 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--arw",
         type=float,
-        default=NoiseSpec.arw_deg_rt_h,
+        default=DEFAULT_ARW_DEG_RT_H,
         help="gyro angle random walk, deg/sqrt(h) (default %(default)s)",
     )
     p.add_argument(
         "--vrw",
         type=float,
-        default=NoiseSpec.vrw_ug_rt_hz,
+        default=DEFAULT_VRW_UG_RT_HZ,
         help="accel noise density, micro-g/sqrt(Hz) (default %(default)s)",
     )
     p.add_argument(
         "--window",
         type=float,
         default=None,
-        help=f"static window length, s (default {NoiseSpec.window_s:g}; "
+        help=f"static window length, s (default {DEFAULT_WINDOW_S:g}; "
         f"{CAPTURE_WINDOW_S:g} with --capture)",
     )
     p.add_argument(
         "--slew",
         type=float,
         default=None,
-        help=f"time between windows (the slew), s (default {NoiseSpec.slew_s:g}; "
+        help=f"time between windows (the slew), s (default {DEFAULT_SLEW_S:g}; "
         f"{CAPTURE_SLEW_S:g} with --capture)",
     )
     p.add_argument(
         "--rate",
         type=float,
-        default=NoiseSpec.rate_hz,
+        default=DEFAULT_RATE_HZ,
         help="sample rate, Hz; with --capture the device's data rate (default %(default)s)",
     )
-    p.add_argument("--temp-start", type=float, default=TemperatureSpec.start_c, help="degC")
+    p.add_argument("--temp-start", type=float, default=DEFAULT_TEMP_START_C, help="degC")
     p.add_argument(
         "--temp-slope",
         type=float,
-        default=TemperatureSpec.slope_c_per_h,
+        default=DEFAULT_TEMP_SLOPE_C_PER_H,
         help="temperature ramp, degC/h (default %(default)s)",
     )
     p.add_argument(
@@ -147,6 +156,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from recal.coefficients import CoefficientSet
+    from recal.errors import RecalInputError
+    from recal.simulate import NoiseSpec, TemperatureSpec, simulate_positions
+    from recal.terms import catalogue_terms
+    from service.cli.common import atomic_write, load_coefficients, parse_effects
+
     catalogue = catalogue_terms()
     hidden = []
     for name in parse_effects(args.hidden):
@@ -232,9 +249,13 @@ def _write_capture(
     sensors: tuple[str, ...],
 ) -> Positions:
     """Simulate the session sample by sample, write the capture; return the true hold means."""
+    import numpy as np
+
     from drivers import DecoderConfig
+    from recal.errors import RecalInputError
     from recal.session import session_positions, simulate_session
     from service.capture_sim import Damage, session_to_kvh
+    from service.cli.common import atomic_write
 
     session = simulate_session(
         truth,

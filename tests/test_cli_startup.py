@@ -1,0 +1,82 @@
+"""Building the parser imports no numpy, scipy, engine or drivers; each command imports its own.
+
+Structural checks in fresh interpreters (sys.modules), not timings: the timings are in
+benchmarks/bench_cli_startup.py.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("numpy", "scipy", "recal.calibrate", "recal.static", "recal.positions", "drivers", "tqdm")
+
+
+def modules_after(code: str) -> set[str]:
+    """The top-level and recal/drivers modules a fresh interpreter holds after running code."""
+    script = f"{code}\nimport sys, json; print(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run(
+        [sys.executable, "-c", script], check=True, capture_output=True, text=True
+    ).stdout
+    return set(json.loads(out.splitlines()[-1]))
+
+
+def test_building_the_parser_imports_nothing_heavy():
+    loaded = modules_after("import service.cli.main as m\nm.build_parser()")
+    assert "service.cli.positions" in loaded and "service.cli.calibrate" in loaded
+    assert not [name for name in HEAVY if name in loaded]
+
+
+def test_help_imports_nothing_heavy():
+    code = (
+        "import service.cli.main as m\n"
+        "try:\n    m.main(['positions', '--help'])\nexcept SystemExit:\n    pass"
+    )
+    loaded = modules_after(code)
+    assert not [name for name in HEAVY if name in loaded]
+
+
+def test_a_command_imports_only_what_it_needs(tmp_path):
+    pos = tmp_path / "pos.csv"
+    code = f"import service.cli.main as m\nassert m.main(['simulate', '-o', {str(pos)!r}]) == 0"
+    loaded = modules_after(code)
+    assert "numpy" in loaded and "recal.simulate" in loaded
+    assert not {"scipy", "recal.calibrate", "recal.static", "drivers"} & loaded
+
+
+@pytest.mark.parametrize(
+    ("module", "constant", "source"),
+    [
+        ("service.cli.simulate", "DESIGNS", "recal.simulate:DESIGNS"),
+        ("service.cli.simulate", "DEFAULT_ARW_DEG_RT_H", "recal.simulate:NoiseSpec.arw_deg_rt_h"),
+        ("service.cli.simulate", "DEFAULT_VRW_UG_RT_HZ", "recal.simulate:NoiseSpec.vrw_ug_rt_hz"),
+        ("service.cli.simulate", "DEFAULT_WINDOW_S", "recal.simulate:NoiseSpec.window_s"),
+        ("service.cli.simulate", "DEFAULT_SLEW_S", "recal.simulate:NoiseSpec.slew_s"),
+        ("service.cli.simulate", "DEFAULT_RATE_HZ", "recal.simulate:NoiseSpec.rate_hz"),
+        ("service.cli.simulate", "DEFAULT_TEMP_START_C", "recal.simulate:TemperatureSpec.start_c"),
+        (
+            "service.cli.simulate",
+            "DEFAULT_TEMP_SLOPE_C_PER_H",
+            "recal.simulate:TemperatureSpec.slope_c_per_h",
+        ),
+        ("service.cli.record", "DEFAULT_BAUD", "drivers.transport:DEFAULT_BAUD"),
+    ],
+)
+def test_constants_repeated_for_the_parser_match_their_source(module, constant, source):
+    import importlib
+
+    where, attr = source.split(":")
+    value = importlib.import_module(where)
+    for part in attr.split("."):
+        value = getattr(value, part)
+    assert getattr(importlib.import_module(module), constant) == value
+
+
+def test_record_formats_are_the_registered_ones():
+    from drivers.formats import format_names
+    from service.cli.record import FORMATS
+
+    assert set(FORMATS) == set(format_names())
