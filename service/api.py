@@ -41,8 +41,9 @@ from service.config import ApiSettings
 from service.db import CalibrationRecord, Store, StoreError
 from service.publish import Publisher
 
-#: Largest id or version a request may name: the databases' 64-bit signed integer.
-MAX_DB_INT = 2**63 - 1
+#: Largest id or version a request may name: the schema's INTEGER columns are 32-bit signed
+#: on PostgreSQL (a larger value there is a database error, not a missing row).
+MAX_DB_INT = 2**31 - 1
 #: Largest page of whole records from ``/coefficients/history?full=true``.
 MAX_FULL_HISTORY = 100
 #: Methods that change something; they need the token and a non-form body.
@@ -233,38 +234,41 @@ def create_app(
             raise HTTPException(409, "a recalibration is already running")
         return QueuedOut(queued=True, job=job)
 
-    async def event_stream() -> AsyncIterator[Stream]:
+    async def event_stream() -> Stream:
         try:
-            stream = broadcast.open()
+            return broadcast.open()
         except TooManyStreams as exc:
             raise HTTPException(429, f"{exc}: try again later", {"Retry-After": "30"}) from None
-        try:
-            yield stream
-        finally:
-            broadcast.close(stream)
 
     @app.get(
         "/events",
         response_class=EventSourceResponse,
         responses={429: {"description": "too many open streams ([api] max_event_streams)"}},
     )
-    async def get_events(stream: Stream = Depends(event_stream)) -> AsyncIterator[ServerSentEvent]:  # noqa: B008
+    async def get_events(
+        stream: Stream = Depends(event_stream),  # noqa: B008
+    ) -> AsyncIterator[ServerSentEvent]:
         """Server-Sent Events: ``event: coefficients`` with the published JSON as ``data``
         (the current version first, if any), a comment heartbeat when idle."""
-        # Tells the client the subscription exists: nothing published from now on is missed.
-        yield ServerSentEvent(comment="subscribed")
-        sent: Any = None
-        while True:
-            item = await stream.next(heartbeat_s)
-            if item is TIMEOUT:
-                yield ServerSentEvent(comment="heartbeat")
-                continue
-            if item is None:  # the publisher closed: the service is stopping
-                return
-            if item.get("version") == sent:  # handed over twice around subscription time
-                continue
-            sent = item.get("version")
-            yield ServerSentEvent(event="coefficients", id=str(sent), raw_data=json.dumps(item))
+        # The slot is freed here when the stream ends or the client goes (FastAPI ends a yield
+        # dependency before the stream), and by the Broadcast if this never starts.
+        try:
+            # Tells the client the subscription exists: nothing published from now on is missed.
+            yield ServerSentEvent(comment="subscribed")
+            sent: Any = None
+            while True:
+                item = await stream.next(heartbeat_s)
+                if item is TIMEOUT:
+                    yield ServerSentEvent(comment="heartbeat")
+                    continue
+                if item is None:  # the publisher closed: the service is stopping
+                    return
+                if item.get("version") == sent:  # handed over twice around subscription time
+                    continue
+                sent = item.get("version")
+                yield ServerSentEvent(event="coefficients", id=str(sent), raw_data=json.dumps(item))
+        finally:
+            broadcast.close(stream)
 
     return app
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import weakref
 from typing import Any
 
 #: What :meth:`Stream.next` returns when nothing arrived within its timeout.
@@ -58,7 +59,8 @@ class Broadcast:
         self.max_streams = max_streams
         self._queue_size = queue_size
         self._lock = threading.Lock()
-        self._streams: set[Stream] = set()
+        # weak: a stream whose response never started (client gone at once) frees its slot too
+        self._streams: weakref.WeakSet[Stream] = weakref.WeakSet()
         self._pump: threading.Thread | None = None
         self._ended = False
 

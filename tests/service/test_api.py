@@ -227,3 +227,38 @@ def test_real_server_stream_ends_on_shutdown(
         assert next(lines) == ": subscribed"
         publisher.close()
         assert list(lines) == [""]  # the comment's blank line, then the stream ends
+
+
+# ---- history: summaries with paging, whole records on request ---------------------------------
+
+
+def test_history_pages_of_summaries_on_both_databases(
+    store: Store, publisher: Publisher, make_record: MakeRecord, document: dict
+) -> None:
+    versions = [
+        store.add_calibration(
+            make_record(
+                accepted=i != 2, reasons=["r"] * (i == 2), positions_used=list(range(i + 3))
+            )
+        )  # fmt: skip
+        for i in range(5)
+    ]
+    client = TestClient(create_app(store, publisher))
+    page = client.get("/coefficients/history", params={"limit": 2}).json()
+    assert [s["version"] for s in page] == versions[:-3:-1]
+    nxt = client.get(
+        "/coefficients/history", params={"limit": 2, "before_version": page[-1]["version"]}
+    )
+    assert [s["version"] for s in nxt.json()] == versions[2:0:-1]
+    summary = nxt.json()[0]
+    assert summary == summary | {"accepted": False, "reasons": ["r"], "positions": 5,
+                                 "chi2_red": pytest.approx(document["chi2_red"]),
+                                 "verdict": document["observability"]["verdict"],
+                                 "sensor": document["sensor"], "method": "lm"}  # fmt: skip
+    assert "document" not in summary and "positions_used" not in summary
+    full = client.get(
+        "/coefficients/history", params={"full": True, "limit": 1, "before_version": versions[2]}
+    ).json()
+    assert [r["version"] for r in full] == [versions[1]] and full[0]["document"] == document
+    too_many = client.get("/coefficients/history", params={"full": True, "limit": 101})
+    assert too_many.status_code == 422 and "at most 100" in too_many.json()["detail"]
