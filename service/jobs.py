@@ -14,15 +14,14 @@ long-lived supervisor thread starts the processes and watches them, and reports 
 * :meth:`JobRunner.cancel` (shutdown): killed and reported ``cancelled``.
 
 The worker ignores SIGINT and SIGTERM (a Ctrl-C or a ``systemctl stop`` reaches the whole
-process group; the daemon decides how a job ends) and, on Linux, asks the kernel to kill it when
-the daemon dies (``PR_SET_PDEATHSIG``), so no worker outlives a ``kill -9`` of the daemon. The
-kernel ties that signal to the *thread* that started the process, which is why only the
-supervisor thread, which lives as long as the runner, ever starts one.
+process group; the daemon decides how a job ends). It leads a process group of its own, which
+its children (the swarm's forked workers) join, and a watcher thread in it kills that whole group
+as soon as the daemon is gone, so nothing outlives a ``kill -9`` of the daemon. (The kernel's
+``PR_SET_PDEATHSIG`` would kill the worker alone and orphan its children.)
 """
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import multiprocessing
 import os
@@ -36,7 +35,8 @@ from typing import Any
 
 log = logging.getLogger("recal.jobs")
 
-_PR_SET_PDEATHSIG = 1
+#: How often the worker checks that the daemon still lives, s.
+PARENT_CHECK_S = 0.25
 #: How often the supervisor looks at a running job, s (also the latency of a result).
 POLL_S = 0.1
 
@@ -56,25 +56,25 @@ class JobEnd:
         return self.status == "ok"
 
 
-def die_with_parent(sig: int = signal.SIGKILL) -> None:
-    """Ask Linux to send ``sig`` to this process when its parent (thread) ends; no-op elsewhere.
+def die_with_parent() -> None:
+    """In a child process: kill this process's whole group as soon as its parent is gone.
 
-    Called first thing in a child process. If the parent is already gone (the race between
-    fork and this call), exit at once.
+    Call it in a process that leads its own group (``os.setpgid(0, 0)``) so that the group is
+    the job and its children, nothing else.
     """
     parent = os.getppid()
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-    except (OSError, AttributeError):  # not Linux: the daemon then relies on its own cleanup
-        return
-    if os.getppid() != parent:
-        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_CHECK_S)
+        os.killpg(0, signal.SIGKILL)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def _worker_main(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+    os.setpgid(0, 0)  # the job's own group: the supervisor kills it whole (swarm children too)
     die_with_parent()
-    os.setpgid(0, 0)  # the supervisor kills the job's whole group (swarm children included)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
