@@ -47,3 +47,77 @@ def test_shipped_example_config_loads():
     s = load_settings(Path(__file__).resolve().parents[2] / "deploy" / "recal.toml")
     assert s.device.url == "/dev/ttyUSB0" and s.site.latitude_deg == 57.7
     assert s.scheduler.sensor == "both" and s.api.port == 8750
+
+
+# ---- unknown keys, the API token and host -----------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            "[scheduler]\nmin_postions = 3\n",
+            "config: scheduler: unknown key min_postions (known: min_positions,",
+        ),
+        ("[device]\nbaud_rate = 9600\n", "config: device: unknown key baud_rate (known: url,"),
+        ("[api]\nprot = 9000\n", "config: api: unknown key prot (known: host, port,"),
+        ("[detector]\nwindow = 2\n", "config: detector: unknown key window (known: window_s,"),
+        (
+            'databse_url = "sqlite:///x.db"\n',
+            "config: unknown key databse_url (known: database_url,",
+        ),
+    ],
+)
+def test_unknown_keys_are_errors_naming_key_and_section(tmp_path, text, message):
+    cfg = tmp_path / "typo.toml"
+    cfg.write_text(text)
+    with pytest.raises(RecalInputError) as info:
+        load_settings(cfg)
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_misspelt_environment_variable_is_named_unrelated_ones_are_not(monkeypatch):
+    monkeypatch.setenv("RECAL_DEBUG", "1")  # the CLI's own, not a setting
+    monkeypatch.setenv("RECAL_TEST_POSTGRES", "postgresql://x")
+    assert load_settings().scheduler.min_positions == 12
+    monkeypatch.setenv("RECAL_SCHEDULER__MIN_POSTIONS", "3")
+    with pytest.raises(RecalInputError, match="environment variable RECAL_SCHEDULER__MIN_POSTIONS"):
+        load_settings()
+
+
+TOKEN = "0123456789abcdef-token"
+
+
+def test_token_from_file_or_environment_is_secret(tmp_path, monkeypatch):
+    cfg = tmp_path / "recal.toml"
+    cfg.write_text(f'[api]\ntoken = "{TOKEN}"\n')
+    s = load_settings(cfg)
+    assert s.api.token.get_secret_value() == TOKEN and TOKEN not in repr(s)
+    monkeypatch.setenv("RECAL_API__TOKEN", TOKEN + "-env")
+    assert load_settings(cfg).api.token.get_secret_value() == TOKEN + "-env"
+    monkeypatch.setenv("RECAL_API__TOKEN", "")  # an empty variable means no token
+    assert load_settings().api.token is None
+    monkeypatch.setenv("RECAL_API__TOKEN", "short")
+    with pytest.raises(RecalInputError, match="config: api.token: must be at least 16"):
+        load_settings()
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "::", "192.168.1.20", "bridge.local"])
+def test_listening_beyond_loopback_needs_a_token(tmp_path, host):
+    cfg = tmp_path / "recal.toml"
+    cfg.write_text(f'[api]\nhost = "{host}"\n')
+    with pytest.raises(RecalInputError, match=rf"config: api: host {host} is reachable .* token"):
+        load_settings(cfg)
+    assert load_settings(cfg, api={"host": host, "token": TOKEN}).api.host == host
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1", "127.0.1.1", "localhost", "::1"])
+def test_loopback_needs_no_token(host):
+    assert load_settings(api={"host": host}).api.token is None
+
+
+def test_allowed_origins_are_checked(tmp_path):
+    ok = load_settings(api={"allowed_origins": ["http://Console.local:8080", "https://[fe80::1]"]})
+    assert ok.api.allowed_origins == ["http://console.local:8080", "https://[fe80::1]"]
+    with pytest.raises(RecalInputError, match="api.allowed_origins: 'console.local' is not"):
+        load_settings(api={"allowed_origins": ["console.local"]})
