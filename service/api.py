@@ -175,15 +175,15 @@ def create_app(
         full: bool = False,
     ) -> list[CalibrationSummaryOut] | list[CalibrationOut]:
         """Calibrations, accepted or not, newest first: summaries (version, time, accepted,
-        reasons, key figures), or whole records with ``full=true`` (at most 100 a page).
+        reasons, key figures), or whole records with ``full=true`` (then at most 100 a page,
+        whatever ``limit`` says).
         The next page is ``before_version=<the last version listed>``."""
         if not full:
             return [
                 CalibrationSummaryOut(**s) for s in store.history_summaries(limit, before_version)
             ]
-        if limit > MAX_FULL_HISTORY:
-            raise HTTPException(422, f"limit: at most {MAX_FULL_HISTORY} with full=true")
-        return [CalibrationOut.of(r) for r in _full_history(store, limit, before_version)]
+        records = _full_history(store, min(limit, MAX_FULL_HISTORY), before_version)
+        return [CalibrationOut.of(r) for r in records]
 
     @app.get("/coefficients/{version}", response_model=CalibrationOut, responses={404: {}})
     def get_version(version: DbId) -> CalibrationOut:
