@@ -86,15 +86,21 @@ class SiteSettings(Section):
     height_m: float = 0.0
 
 
-class DetectorSettings(BaseModel):
-    window_s: float = Field(1.0, gt=0)
-    min_duration_s: float = Field(10.0, gt=0)
-    edge_trim_s: float = Field(1.0, ge=0)
-    init_still_s: float | None = Field(30.0, gt=0)
+class DetectorSettings(Section):
+    """The static detector. Durations left unset follow the device rate (recal.static); the
+    thresholds come, in this order, from explicit values, the noise floor stored for the device
+    (reused after a restart: the unit may be moving then), an initial still period
+    (init_still_s), or the quietest stretches of the first ``learn_s`` seconds."""
+
+    window_s: float | None = Field(None, gt=0)
+    min_duration_s: float | None = Field(None, gt=0)
+    edge_trim_s: float | None = Field(None, ge=0)
+    init_still_s: float | None = Field(None, gt=0)
+    learn_s: float = Field(120.0, gt=0)
     threshold_k: float = Field(5.0, gt=0)
-    accel_threshold: float | None = None
-    gyro_threshold: float | None = None
-    max_gap_frames: int = Field(0, ge=0)
+    accel_threshold: float | None = Field(None, ge=0)
+    gyro_threshold: float | None = Field(None, ge=0)
+    max_gap_frames: int = Field(5, ge=0)
 
 
 class SchedulerSettings(Section):

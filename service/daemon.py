@@ -24,7 +24,7 @@ from typing import Any
 
 from service.config import Settings
 from service.events import Events
-from service.pipeline import Ingest, Scheduler, detector_config
+from service.pipeline import FloorKeeper, Ingest, Scheduler, detector_config, window_frames
 
 log = logging.getLogger("recal.daemon")
 
@@ -188,7 +188,12 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
     except BaseException:
         store.close()
         raise
-    ingest = Ingest(store, session_id, detector_config(settings), scheduler.notify, events)
+    config = detector_config(settings)
+    d = settings.device
+    device = f"{d.url} {d.format} {d.rate_hz:g} Hz"
+    keeper = FloorKeeper(store, device, events, window_frames(config, d.rate_hz))
+    ingest = Ingest(store, session_id, config, scheduler.notify, events, keeper,
+                    settings.detector.learn_s)  # fmt: skip
     service = Service(settings, store, publisher, scheduler, ingest, session_id, events)
     if with_reader:
         from drivers import DecoderConfig, FrameReader

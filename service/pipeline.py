@@ -14,7 +14,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 
@@ -24,7 +24,14 @@ from recal.calibrate import CalibrationOptions, calibrate
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
 from recal.positions import Positions
-from recal.static import DetectorConfig, StaticDetector, windows_to_columns
+from recal.static import (
+    DetectorConfig,
+    NoiseFloor,
+    NoiseFloorEstimator,
+    StaticDetector,
+    Window,
+    windows_to_columns,
+)
 from service.config import Settings
 from service.db import StoreError
 from service.events import Events
@@ -42,7 +49,15 @@ SPOOL_MAX = 10_000
 SPOOL_RETRY_MIN_S, SPOOL_RETRY_MAX_S = 0.5, 30.0
 
 
+#: Windows between two refinements of the stored noise floor, and how many recent windows the
+#: refined value is the median of.
+REFINE_EVERY, REFINE_OVER = 10, 50
+#: One refinement moves the floor by at most this factor (a few odd windows cannot run away).
+REFINE_MAX_STEP = 2.0
+
+
 def detector_config(settings: Settings) -> DetectorConfig:
+    """The detector as configured (thresholds, if any, not yet from the store)."""
     d = settings.detector
     return DetectorConfig(
         window_s=d.window_s,
@@ -55,6 +70,76 @@ def detector_config(settings: Settings) -> DetectorConfig:
         sample_rate_hz=settings.device.rate_hz,
         max_gap_frames=d.max_gap_frames,
     )
+
+
+def window_frames(config: DetectorConfig, rate_hz: float) -> int:
+    """The moving-window length W (frames) the detector uses at ``rate_hz``."""
+    window_s = config.durations(rate_hz)[0]
+    return 2 * max(1, round(window_s * rate_hz / 2)) + 1
+
+
+class FloorKeeper:
+    """The static detector's noise floor for one device, kept in the store.
+
+    A unit restarted at sea may be moving: thresholds learned then would let motion through as
+    "static". So the floor learned once (from the quietest stretches of the first minutes, or an
+    initial still period) is stored with the device and reused at every start, and refined only
+    from windows that passed the detector: the median of their moving-variance traces.
+    """
+
+    def __init__(self, store: Any, device: str, events: Events, window_samples: int) -> None:
+        self._store = store
+        self.device = device
+        self._events = events
+        self._w = window_samples
+        self._recent: deque[tuple[float, float]] = deque(maxlen=REFINE_OVER)
+        self._since = 0
+        self._windows = 0
+        self.floor: NoiseFloor | None = None
+
+    def load(self) -> NoiseFloor | None:
+        """The stored floor for this device and moving-window length, or None."""
+        row = self._store.noise_floor(self.device)
+        if row is None or int(row["window_samples"]) != self._w:
+            return None
+        self._windows = int(row["windows"])
+        self.floor = NoiseFloor(
+            accel=row["accel"],
+            gyro=row["gyro"],
+            window_samples=self._w,
+            source=f"stored for this device on {row['created_at'][:19]} ({row['source']})",
+        )
+        return self.floor
+
+    def save(self, floor: NoiseFloor, source: str) -> None:
+        self.floor = floor
+        try:
+            self._store.save_noise_floor(self.device, {
+                "accel": floor.accel, "gyro": floor.gyro, "window_samples": floor.window_samples,
+                "source": source, "windows": self._windows})  # fmt: skip
+        except StoreError as exc:  # kept in memory; the next refinement stores it again
+            log.warning("event=noise_floor cannot store it: %s", exc)
+            return
+        self._events.emit("noise_floor", f"detector noise floor {source}: accel "
+                          f"{floor.accel:.4g}, gyro {floor.gyro:.4g}",
+                          {"device": self.device, "windows": self._windows})  # fmt: skip
+
+    def refine(self, windows: list[Window]) -> None:
+        """Take the moving-variance traces of windows that passed; store a new floor now and
+        then."""
+        for w in windows:
+            if np.isfinite(w.accel_mvar) and np.isfinite(w.gyro_mvar):
+                self._recent.append((w.accel_mvar, w.gyro_mvar))
+                self._since += 1
+                self._windows += 1
+        if self.floor is None or self._since < REFINE_EVERY:
+            return
+        self._since = 0
+        med = np.median(np.array(self._recent), axis=0)
+        old = np.array([self.floor.accel, self.floor.gyro])
+        new = np.clip(med, old / REFINE_MAX_STEP, old * REFINE_MAX_STEP)
+        floor = NoiseFloor(float(new[0]), float(new[1]), self._w, self.floor.source)
+        self.save(floor, f"refined from {self._windows} windows that passed")
 
 
 class Ingest:
@@ -72,12 +157,28 @@ class Ingest:
         config: DetectorConfig,
         on_positions: Callable[[list[int]], None] | None = None,
         events: Events | None = None,
+        keeper: FloorKeeper | None = None,
+        learn_s: float = 120.0,
     ) -> None:
         self._store = store
         self._session = session_id
-        self._detector = StaticDetector(config)
         self._on_positions = on_positions
         self._events = events or Events(store)
+        self._keeper = keeper
+        self._config = config
+        self._learn_s = learn_s
+        self._estimator: NoiseFloorEstimator | None = None
+        self._learning: list[Any] = []  # frames held while the first noise floor is learned
+        self._learned_s = 0.0
+        self._detector: StaticDetector | None = None
+        explicit = config.accel_threshold is not None and config.gyro_threshold is not None
+        stored = keeper.load() if keeper is not None and not explicit else None
+        if stored is not None:  # the stored floor wins over learning again (maybe in motion)
+            self._config = replace(config, noise_floor=stored, init_still_s=None)
+        if self._config.has_thresholds:
+            self._start_detector()
+        else:
+            self._estimator = NoiseFloorEstimator(config.window_s, config.sample_rate_hz)
         self._pending: list[Any] = []
         self._count = 0
         self._first_pending = 0.0
@@ -125,7 +226,45 @@ class Ingest:
 
     @property
     def report(self) -> Any:
-        return self._detector.report
+        return None if self._detector is None else self._detector.report
+
+    @property
+    def learning(self) -> bool:
+        """Frames are being held to learn the first noise floor (no windows yet)."""
+        return self._detector is None
+
+    def _start_detector(self) -> None:
+        self._detector = StaticDetector(self._config)
+        cfg = self._config
+        self._learned_from_still = (
+            self._keeper is not None and cfg.init_still_s is not None and cfg.noise_floor is None
+        )
+
+    def _learn(self, batch: Any, final: bool) -> list[Any]:
+        """Hold frames and feed the estimator until ``learn_s`` of device time (or the end of
+        the stream); then start the detector with the floor and give it the held frames."""
+        if batch is not None and len(batch):
+            self._learning.append(batch)
+            self._estimator.feed(batch.time_s, batch.gyro_dph, batch.accel_g, batch.valid)
+            t = batch.time_s
+            self._learned_s += float(t[-1] - t[0]) if len(t) > 1 else 0.0
+        if self._learned_s < self._learn_s and not final:
+            return []
+        try:
+            floor = self._estimator.result()
+        except RecalInputError as exc:
+            if not final:
+                return []  # not enough yet (e.g. all frames invalid so far): keep learning
+            self._events.emit("noise_floor", f"cannot learn the noise floor: {exc}",
+                              level=logging.WARNING)  # fmt: skip
+            self._learning = []
+            return []
+        self._config = replace(self._config, noise_floor=floor)
+        self._start_detector()
+        if self._keeper is not None:
+            self._keeper.save(floor, floor.source)
+        held, self._learning = self._learning, []
+        return held
 
     def frames_waiting_s(self) -> float | None:
         """How long the oldest frame not yet given to the detector has waited (host s)."""
@@ -133,6 +272,9 @@ class Ingest:
             return time.monotonic() - self._first_pending if self._pending else None
 
     def detector_health(self) -> dict[str, Any]:
+        if self._detector is None:
+            return {"learning_noise_floor": True, "learned_s": round(self._learned_s, 1),
+                    "learn_s": self._learn_s}  # fmt: skip
         rep = self._detector.report
         return {
             "accel_threshold": rep.accel_threshold,
@@ -150,16 +292,30 @@ class Ingest:
     def _run(self, flush: bool) -> list[int]:
         windows = []
         self.last_detector_run = time.monotonic()
-        if self._pending:
+        batches, self._pending, self._count = self._pending, [], 0
+        if self._detector is None:
             from drivers import FrameBatch
 
-            b = FrameBatch.concat(self._pending)
-            self._pending, self._count = [], 0
+            batches = self._learn(FrameBatch.concat(batches) if batches else None, final=flush)
+        if batches and self._detector is not None:
+            from drivers import FrameBatch
+
+            b = FrameBatch.concat(batches)
             windows += self._detector.feed(
                 b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid, b.lost_before
             )
-        if flush:
+        if flush and self._detector is not None:
             windows += self._detector.flush()
+        if self._detector is not None and self._learned_from_still:
+            rep = self._detector.report
+            if rep.accel_threshold is not None:  # the initial still period is over: store it
+                self._learned_from_still = False
+                k = self._config.threshold_k
+                floor = NoiseFloor(rep.accel_threshold / k, rep.gyro_threshold / k,
+                                   rep.window_samples, rep.threshold_source)  # fmt: skip
+                self._keeper.save(floor, rep.threshold_source or "initial still period")
+        if windows and self._keeper is not None:
+            self._keeper.refine(windows)
         if windows:
             if len(self._spool) >= SPOOL_MAX:
                 self._spool.popleft()
