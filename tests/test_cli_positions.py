@@ -173,14 +173,37 @@ def test_missing_input_file(shared_data, tmp_path, capsys):
     assert_clean_failure(rc, err, outdir, "does not exist")
 
 
-def test_missing_thresholds(shared_data, tmp_path, capsys):
-    outdir = tmp_path / "out"
-    outdir.mkdir()
+def test_xsens_pair_flag_free(xsens_csv, shared_data, tmp_path, capsys):
+    """No threshold flag: a first pass learns the noise floor; the same 38 windows."""
+    out = tmp_path / "flag_free.csv"
     rc, err = run_positions(
-        capsys, shared_data / ACC, shared_data / GYRO, "--format", "xsens-text",
-        "-o", outdir / "p.csv",
-    )  # fmt: skip
-    assert_clean_failure(rc, err, outdir, "--init-still")
+        capsys, shared_data / ACC, shared_data / GYRO, "--format", "xsens-text", "-o", out
+    )
+    assert rc == 0, err
+    assert "quietest" in err and "38 kept" in err  # what was learned, and from where
+    table = Positions.from_csv_text(out.read_text())
+    reference = Positions.from_csv_text(xsens_csv[0].read_text())
+    assert len(table) == 38
+    np.testing.assert_allclose(table.accel, reference.accel, rtol=1e-6)
+
+
+def test_simulated_capture_flag_free(tmp_path, capsys):
+    """recal simulate --capture with damage, then recal positions with no flag: every hold."""
+    capture, truth = tmp_path / "session.bin", tmp_path / "true.csv"
+    rc = main(["simulate", "--capture", str(capture), "--bit-flips", "5", "--garbage", "3",
+               "--drop", "5", "--latitude", "50", "-o", str(truth)])  # fmt: skip
+    assert rc == 0
+    hint = capsys.readouterr().err
+    assert f"recal positions {capture} --format kvh-a -o POSITIONS.csv" in hint
+    out = tmp_path / "pos.csv"
+    rc, err = run_positions(capsys, capture, "--format", "kvh-a", "-o", out)
+    assert rc == 0, err
+    assert "24 kept" in err and "CRC failures" in err
+    found = Positions.from_csv_text(out.read_text())
+    true = Positions.from_csv_text(truth.read_text())
+    assert len(found) == len(true) == 24
+    np.testing.assert_allclose(found.accel, true.accel, atol=1e-4)  # g
+    assert main(["calibrate", str(out), "--latitude", "50"]) == 0
 
 
 def test_pair_from_two_recordings(shared_data, tmp_path, capsys):

@@ -197,16 +197,10 @@ def _config(args: argparse.Namespace, recording, floor):
 
 def _learn_noise_floor(recording, args: argparse.Namespace):
     """Pass 1: the moving-variance floor of the whole recording (recal.static)."""
-    from recal import static
-    from recal.errors import RecalInputError
+    from recal.static import NoiseFloorEstimator
 
-    if not hasattr(static, "NoiseFloorEstimator"):  # the flag-free detector is not built yet
-        raise RecalInputError(
-            "give --init-still S (the recording starts still for S seconds; the thresholds are "
-            "learned there) or both --accel-threshold and --gyro-threshold"
-        )
     given = {"window_s": args.window, "sample_rate_hz": recording.sample_rate_hz}
-    estimator = static.NoiseFloorEstimator(**{k: v for k, v in given.items() if v is not None})
+    estimator = NoiseFloorEstimator(**{k: v for k, v in given.items() if v is not None})
     with _ByteProgress(recording.total_bytes, "noise floor") as bar:
         for frames in recording.frames(bar.update):
             estimator.feed(frames["time_s"], frames["gyro"], frames["accel"], frames["valid"])

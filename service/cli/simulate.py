@@ -287,14 +287,14 @@ def _write_capture(
         np.random.default_rng((args.seed, 1)),
     )
     atomic_write(args.capture, data)
-    first_s = (session.hold_last[0] - session.hold_first[0] + 1) / args.rate
+    rate_flag = "" if args.rate == 1000 else f" --rate {args.rate:g}"  # the decoder's default
     print(
         f"recal simulate: wrote {info.frames - info.dropped.shape[0]} {info.format} frames "
         f"({info.bytes} bytes, {session.n_holds} static holds, {len(session) / args.rate:.1f} s "
         f"at {args.rate:g} Hz; damage: {info.bit_flips.shape[0]} bit flips, "
         f"{info.garbage.shape[0]} garbage runs, {info.dropped.shape[0]} frames dropped) to "
         f"{args.capture}; read it with `recal positions {args.capture} --format "
-        f"{info.format} --rate {args.rate:g} --init-still {max(1, int(0.5 * first_s))}`",
+        f"{info.format}{rate_flag} -o POSITIONS.csv`",
         file=sys.stderr,
     )
     return session_positions(session, sensors)
