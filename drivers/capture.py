@@ -6,7 +6,6 @@ Side file ``OUT.chunks.csv``: '#' comment lines, then the header
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -50,7 +49,8 @@ def decode_capture(
     config: DecoderConfig = DEFAULT_CONFIG,
 ) -> tuple[FrameBatch, DecoderCounters]:
     """Decode a capture file; with its side file, each frame gets the host time of the chunk
-    that held its last byte (as the live streaming decoder would have stamped it)."""
+    that held its last byte, and losses of 128 frames or more are counted from those times (as
+    the live streaming decoder fed the same reads did)."""
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -58,13 +58,7 @@ def decode_capture(
         raise DriverInputError(f"capture file {p} does not exist") from None
     except IsADirectoryError:
         raise DriverInputError(f"capture path {p} is a folder, not a file") from None
-    f = get_format(fmt)
-    batch, counters, starts = decode_bulk_with_offsets(data, f, config)
     side = side_path(p)
-    if len(batch) and side.exists():
-        times, offsets = read_side_file(side)
-        if times.shape[0]:
-            k = np.searchsorted(offsets, starts + f.length - 1, side="right") - 1
-            host = np.where(k >= 0, times[np.maximum(k, 0)], math.nan)
-            batch.host_time_s = host.astype(np.float64)
+    chunks = read_side_file(side) if side.exists() else None
+    batch, counters, _ = decode_bulk_with_offsets(data, get_format(fmt), config, chunks)
     return batch, counters

@@ -118,8 +118,12 @@ class DecoderCounters:
     whose CRC (or checksum) failed. truncated: candidates cut off by the end of the stream (or
     by a reconnect). resyncs: maximal runs of skipped bytes, i.e. times the decoder lost frame
     lock and searched for the next header. sequence_gaps: gap events in the sequence number;
-    frames_lost: frames missing in those gaps (sum of lost_before; modulo 128, so a loss of
-    128 or more frames is under-counted). invalid_status: decoded frames with
+    frames_lost: frames missing in those gaps (sum of lost_before): the sequence number gives
+    the count modulo 128, and the timestamp (formats that have one) or the host receive times
+    (when the reads' times are known) give the whole count across wraps. misaligned: frames
+    whose check passed but that were skipped because a valid frame started inside them and no
+    header followed them (a frame cut one byte short that borrowed the next frame's first
+    byte): the following frame is kept instead. invalid_status: decoded frames with
     (status & 0x77) != 0x77. headers_seen: headers of every registered format found at the
     positions the decoder examined (frame starts and skipped bytes; bytes inside a decoded frame
     are not examined), used to tell a mis-set format.
@@ -137,6 +141,7 @@ class DecoderCounters:
     frames_lost: int = 0
     invalid_status: int = 0
     headers_seen: dict[str, int] = field(default_factory=dict)
+    misaligned: int = 0
 
     def balanced(self) -> bool:
         """True when the accounting identity holds."""

@@ -104,7 +104,8 @@ def test_truncated_frames(fmt: str, n: int, seed: int, data) -> None:
             starts.append(pos)
         pos += kept
     assert c.truncated == sum(1 for p in starts if p + length > len(out))
-    assert c.crc_failures == len(starts) - c.truncated
+    # a cut frame that passes its CRC with the next frame's first byte is misaligned
+    assert c.crc_failures + c.misaligned == len(starts) - c.truncated
 
 
 @SETTINGS

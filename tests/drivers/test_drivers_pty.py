@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -17,22 +18,35 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="ne
 
 
 class PtyDevice:
-    """The device side of a pty, reachable through a symlink (a pty's name changes on replug)."""
+    """The device side of a pty, reachable through a symlink (a pty's name changes on replug).
 
-    def __init__(self, link) -> None:
+    Like the real device it counts frames in real time whether or not anyone listens: frame k
+    is due at ``t0 + k / rate_hz`` and carries sequence number k % 128.
+    """
+
+    def __init__(self, link, t0: float | None = None, rate_hz: float = 1000.0) -> None:
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)  # no echo or line editing before the reader configures it
         tmp = f"{link}.new"
         os.symlink(os.ttyname(self.slave), tmp)
         os.replace(tmp, link)
         self.link = link
+        self.t0 = time.monotonic() if t0 is None else t0
+        self.rate_hz = rate_hz
 
-    def write_frames(self, seq0: int, n: int, rate_hz: float = 2000.0, batch: int = 10) -> None:
-        data, _ = make_frames(n, seed=seq0, seq0=seq0)
-        step = 36 * batch
-        for i in range(0, len(data), step):
-            os.write(self.master, data[i : i + step])
-            time.sleep(batch / rate_hz)
+    def due_index(self) -> int:
+        """The frame the device is sending now."""
+        return int(math.ceil((time.monotonic() - self.t0) * self.rate_hz))
+
+    def write_frames(self, k0: int, n: int, batch: int = 10) -> None:
+        """Frames k0 .. k0 + n - 1, each batch written when its last frame is due."""
+        data, _ = make_frames(n, seed=k0, seq0=k0)
+        for i in range(0, n, batch):
+            last = min(i + batch, n) - 1
+            wait = self.t0 + (k0 + last) / self.rate_hz - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            os.write(self.master, data[36 * i : 36 * (last + 1)])
 
     def unplug(self) -> None:
         os.unlink(self.link)
@@ -63,7 +77,7 @@ def test_unplug_and_replug(tmp_path) -> None:
     ).start()
     try:
         assert _wait_until(lambda: reader.health().connected)
-        device.write_frames(seq0=0, n=200)
+        device.write_frames(0, n=200)
         assert _wait_until(lambda: reader.health().counters.frames == 200)
         assert _wait_until(lambda: reader.health().state == "silent")
         h = reader.health()
@@ -76,17 +90,22 @@ def test_unplug_and_replug(tmp_path) -> None:
         assert not h.connected and h.running and h.state == "disconnected"
         assert h.disconnected_s >= 0.1 and h.last_error and h.last_error in h.problem
 
-        device = PtyDevice(link)  # replug: a new pty behind the same path
+        time.sleep(1.0)  # away for over 1,000 frames: the 7-bit sequence wraps 8 times
+        device = PtyDevice(link, t0=device.t0)  # replug: a new pty behind the same path
         assert _wait_until(lambda: reader.health().connected)
         assert reader.health().reconnect_count == 1
-        # 50 frames (seq 200..249) were sent while unplugged
-        device.write_frames(seq0=250, n=200)
+        k1 = device.due_index()
+        device.write_frames(k1, n=200)
         assert _wait_until(lambda: reader.health().counters.frames == 400)
         h = reader.health()
-        assert h.counters.sequence_gaps == 1 and h.counters.frames_lost == 50
+        # the host receive times count the wraps the sequence number cannot show
+        assert k1 - 200 > 1000
+        assert h.counters.sequence_gaps == 1 and h.counters.frames_lost == k1 - 200
         assert h.counters.crc_failures == 0 and h.last_frame_time is not None
         seqs = [int(s) for b in got for s in b.seq]
-        assert seqs == [i % 128 for i in list(range(200)) + list(range(250, 450))]
+        assert seqs == [i % 128 for i in list(range(200)) + list(range(k1, k1 + 200))]
+        time_s = np.concatenate([b.time_s for b in got])
+        np.testing.assert_allclose(time_s[200:], np.arange(k1, k1 + 200) / 1000.0)
     finally:
         assert reader.stop(timeout=2.0)
         device.unplug()
