@@ -16,6 +16,7 @@ from .config import (
     raw_to_physical_gyro,
 )
 from .crc import crc32_mpeg2
+from .csv_log import CsvLayout, CsvLogParser, LogChunk, parse_column_map
 from .decoder import StreamDecoder
 from .diagnose import diagnose, require_frames
 from .encode import encode_frame, encode_frames
@@ -28,12 +29,15 @@ from .transport import open_port, replay_url  # importing transport registers re
 
 __all__ = [
     "DEFAULT_CONFIG",
+    "CsvLayout",
+    "CsvLogParser",
     "DecoderConfig",
     "DecoderCounters",
     "DriverInputError",
     "FrameBatch",
     "FrameFormat",
     "FrameReader",
+    "LogChunk",
     "ReaderHealth",
     "RecordResult",
     "StreamDecoder",
@@ -47,6 +51,7 @@ __all__ = [
     "format_names",
     "get_format",
     "open_port",
+    "parse_column_map",
     "physical_to_raw_gyro",
     "physical_to_raw_temperature",
     "raw_to_physical_gyro",

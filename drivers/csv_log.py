@@ -284,8 +284,8 @@ class CsvLogParser:
         name = self.layout.source_of(TIME)
         if not math.isfinite(t[i]):
             return f"line {number}, column {name!r}: time is not a finite number"
-        before = t[i - 1] if i else self._t_last
+        before = float(t[i - 1] if i else self._t_last)
         return (
-            f"line {number}, column {name!r}: time {t[i]!r} s does not come after {before!r} s "
-            "(time must increase)"
+            f"line {number}, column {name!r}: time {float(t[i])!r} s does not come after "
+            f"{before!r} s (time must increase)"
         )
