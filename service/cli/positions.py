@@ -267,7 +267,7 @@ class _ByteProgress:
 
     def __init__(self, total: int, desc: str) -> None:
         self._bar = None
-        if total >= _PROGRESS_MIN_BYTES:
+        if total >= _PROGRESS_MIN_BYTES and sys.stderr.isatty():
             from service.cli.common import progress_bar
 
             self._bar = progress_bar(total, desc, unit="B")
