@@ -447,7 +447,9 @@ class Scheduler:
             if self.busy:
                 raise SchedulerBusy("a recalibration is already running")
             stored = self._store.count_positions()
-            if trigger != "manual" and stored < s.scheduler.min_positions:
+            # the policy's minimum decides automatic jobs; an operator's trigger, or the rerun of
+            # a job a restart interrupted, only needs positions the engine can use
+            if trigger not in ("manual", "resume") and stored < s.scheduler.min_positions:
                 raise SchedulerRefused(
                     f"only {stored} positions are stored; an automatic recalibration waits for "
                     f"{s.scheduler.min_positions} (scheduler.min_positions)"
@@ -496,7 +498,10 @@ class Scheduler:
         latest = self._store.history(limit=1)
         seen = max(latest[0].positions_used, default=0) if latest else 0
         _, new_ids = self._store.positions(since_id=seen, limit=100_000)
-        due = len(new_ids) >= self._settings.scheduler.min_new_positions
+        s = self._settings.scheduler
+        due = len(new_ids) >= s.min_new_positions and (
+            self._store.count_positions() >= s.min_positions
+        )
         if not (interrupted or due):
             return None
         why = "a job was interrupted by the restart" if interrupted else "new positions"

@@ -1,0 +1,244 @@
+"""What a vessel does to the daemon: a killed worker, a database outage, a restart mid-job, and
+``systemctl stop`` signalling the whole control group (issue 8)."""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psycopg
+import pytest
+from psycopg import sql
+from sqlalchemy.engine import make_url
+
+from drivers import DecoderConfig, decode_bulk
+from recal.session import simulate_session
+from service.capture_sim import kvh_like_truth, session_to_kvh
+from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
+from service.daemon import build_service
+from service.db import Store, StoreError
+
+RATE = 100.0
+
+
+@pytest.fixture(scope="module")
+def capture() -> bytes:
+    session = simulate_session(kvh_like_truth(4), "24", latitude_deg=45.0, seed=4, rate_hz=RATE,
+                               window_s=12.0, slew_s=3.0, first_hold_s=12.0)  # fmt: skip
+    return session_to_kvh(session, rng=4)[0]
+
+
+def _settings(url: str, tmp_path: Path, **scheduler) -> Settings:
+    return Settings(
+        database_url=url,
+        publish_path=str(tmp_path / "c.json"),
+        device=DeviceSettings(url="replay://unit", rate_hz=RATE),
+        detector=DetectorSettings(accel_threshold=1e-6, gyro_threshold=1e4),
+        scheduler=SchedulerSettings(
+            **({"min_positions": 1000, "min_new_positions": 1000} | scheduler)
+        ),  # fmt: skip
+    )
+
+
+def _feed(service, data: bytes, part: slice = slice(None)) -> None:
+    """Decode the capture and feed frames ``part`` in 1 s batches, as the reader would."""
+    batch, _ = decode_bulk(data, "kvh-a", DecoderConfig(rate_hz=RATE))
+    batch = batch[part]
+    for lo in range(0, len(batch), int(RATE)):
+        service.ingest.feed(batch[lo : lo + int(RATE)])
+
+
+def test_a_killed_worker_is_recorded_and_the_next_trigger_works(tmp_path, capture) -> None:
+    settings = _settings(f"sqlite:///{tmp_path / 'r.db'}", tmp_path, method="nafsa",
+                         mc_runs=100_000)  # fmt: skip
+    service = build_service(settings, with_reader=False)
+    try:
+        _feed(service, capture)
+        service.ingest.flush()
+        assert service.store.count_positions() == 24
+        service.scheduler.trigger("manual")
+        runner = service.scheduler._runner
+        deadline = time.monotonic() + 60
+        while runner._running is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        os.kill(runner._running.process.pid, signal.SIGKILL)
+        service.scheduler.wait(timeout=60)
+        health = service.health()
+        assert health["scheduler"]["last_job"]["status"] == "died"
+        assert "signal 9" in health["scheduler"]["last_job"]["message"]
+        assert not health["recalibrating"]
+        events = [e["message"] for e in service.store.events(limit=20)]
+        assert any("failed (died)" in m for m in events)
+        # the next job works (LM this time: quick)
+        service.scheduler._settings = settings.model_copy(
+            update={"scheduler": settings.scheduler.model_copy(update={"method": "lm"})}
+        )
+        service.scheduler.trigger("manual")
+        outcome = service.scheduler.wait(timeout=120)
+        assert outcome is not None and outcome.document is not None
+        assert service.scheduler.last_end.status == "ok"
+    finally:
+        service.close(wait_s=0)
+
+
+def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
+    from service.pipeline import SchedulerRefused
+
+    service = build_service(_settings(f"sqlite:///{tmp_path / 'r.db'}", tmp_path),
+                            with_reader=False)  # fmt: skip
+    try:
+        with pytest.raises(SchedulerRefused, match="no positions"):
+            service.scheduler.trigger("manual")
+        with pytest.raises(SchedulerRefused, match="scheduler.min_positions"):
+            service.scheduler.trigger("auto")
+    finally:
+        service.close(wait_s=0)
+
+
+PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
+
+
+def _admin() -> psycopg.Connection:
+    return psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=3)
+
+
+@pytest.fixture
+def pg_database():
+    try:
+        admin = _admin()
+    except psycopg.OperationalError as exc:
+        if os.environ.get("CI"):
+            pytest.fail(f"PostgreSQL unreachable: {exc}")
+        pytest.skip(f"PostgreSQL unreachable: {exc}")
+    name = f"recal_outage_{secrets.token_hex(4)}"
+    with admin:
+        admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
+    url = make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg", database=name)
+    try:
+        yield name, url.render_as_string(hide_password=False)
+    finally:
+        with _admin() as admin:
+            admin.execute(
+                sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS true").format(sql.Identifier(name))
+            )
+            admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(sql.Identifier(name)))
+
+
+def _block(name: str, allow: bool) -> None:
+    with _admin() as admin:
+        admin.execute(
+            sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS {}").format(
+                sql.Identifier(name), sql.SQL("true" if allow else "false")
+            )
+        )
+        if not allow:
+            admin.execute(
+                "SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s",
+                (name,),
+            )
+
+
+def test_no_window_is_lost_to_a_database_outage(tmp_path, capture, pg_database) -> None:
+    name, url = pg_database
+    service = build_service(_settings(url, tmp_path), with_reader=False)
+    try:
+        half = len(capture) // 36 // 2
+        _feed(service, capture, slice(0, half))
+        before = service.store.count_positions()
+        assert before > 5
+        _block(name, allow=False)
+        _feed(service, capture, slice(half, None))
+        service.ingest.flush()
+        assert service.ingest.spooled > 0  # waiting, not dropped
+        health = service.health()
+        assert health["status"] == "degraded"
+        assert any(p.startswith("database:") for p in health["problems"])
+        _block(name, allow=True)
+        deadline = time.monotonic() + 60
+        while service.ingest.spooled:
+            assert time.monotonic() < deadline, "spooled windows were never stored"
+            service.ingest.poll()
+            time.sleep(0.2)
+        assert service.store.count_positions() == 24
+        assert service.ingest.windows_dropped == 0
+        assert service.health()["status"] == "ok"
+    finally:
+        service.close(wait_s=0)
+
+
+def test_a_restart_resumes_the_interrupted_job(tmp_path, capture) -> None:
+    url = f"sqlite:///{tmp_path / 'r.db'}"
+    service = build_service(_settings(url, tmp_path), with_reader=False)
+    _feed(service, capture)
+    service.ingest.flush()
+    # a job was running when the power went: its start is recorded, its end never was
+    service.events.emit("job", "recalibration 1 started (auto)", {"job": 1, "state": "started"})
+    service.close(wait_s=0)
+    service = build_service(_settings(url, tmp_path), with_reader=False)
+    try:
+        assert service.scheduler.resume() is not None
+        outcome = service.scheduler.wait(timeout=120)
+        assert outcome is not None and outcome.document is not None
+        assert service.store.history(limit=1)[0].trigger == "resume"
+        # nothing interrupted and no new positions: a second restart starts nothing
+        assert service.scheduler.resume() is None
+    finally:
+        service.close(wait_s=0)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_sigterm_to_the_whole_group_mid_job_exits_0(tmp_path, capture) -> None:
+    """What `systemctl stop` does with KillMode=control-group: every process gets SIGTERM."""
+    (tmp_path / "capture.bin").write_bytes(capture)
+    port = _free_port()
+    (tmp_path / "recal.toml").write_text(
+        f'database_url = "sqlite:///{tmp_path / "r.db"}"\npublish_path = "{tmp_path / "c.json"}"\n'
+        f'[device]\nurl = "replay://{tmp_path / "capture.bin"}?speed=max&rate=100"\n'
+        f"rate_hz = 100\n[detector]\naccel_threshold = 1e-6\ngyro_threshold = 1e4\n"
+        f'[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "nafsa"\n'
+        f"mc_runs = 100000\nstop_wait_s = 1\n[api]\nport = {port}\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "serve", "--config", str(tmp_path / "recal.toml")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        store = None
+        deadline = time.monotonic() + 90
+        while True:  # wait until a (long) swarm job is running
+            assert time.monotonic() < deadline, "no job started"
+            assert proc.poll() is None, proc.communicate()[1]
+            time.sleep(0.5)
+            if not (tmp_path / "r.db").exists():
+                continue
+            store = store or Store(f"sqlite:///{tmp_path / 'r.db'}")
+            try:
+                if store.last_event("job", state="started") is not None:
+                    break
+            except StoreError:  # the daemon has not created its tables yet
+                continue
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGTERM)
+        _, err = proc.communicate(timeout=150)
+        assert proc.returncode == 0, err
+        assert "internal error" not in err
+        ended = store.last_event("job", state="ended")
+        assert ended is not None and ended["data"]["status"] == "cancelled"
+        assert store.last_event("stop") is not None
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        if store is not None:
+            store.close()
