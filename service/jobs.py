@@ -110,6 +110,7 @@ class JobRunner:
         self._running: _Running | None = None
         self._queued = 0  # submitted, not yet started
         self._cancel: str | None = None
+        self._ending = False  # on_end of the running job is being called (it may chain a job)
         self._jobs = 0
         self._closed = False
         self.last_beat = time.monotonic()  # the supervisor's heartbeat (health, watchdog)
@@ -140,7 +141,10 @@ class JobRunner:
         with self._lock:
             if self._closed:
                 raise RuntimeError("the job runner is shut down")
-            if self._running is not None or self._queued:
+            # a job stays "running" until its end is handled (stored, published), so nothing
+            # starts from a stale prior; only its own end handler may chain the next one
+            chaining = self._ending and threading.current_thread() is self._thread
+            if (self._running is not None and not chaining) or self._queued:
                 raise RuntimeError("a job is already running")
             self._jobs += 1
             self._queued += 1
@@ -182,12 +186,15 @@ class JobRunner:
                 continue
             end = self._check(r)
             if end is not None:
-                with self._lock:
-                    self._running = None
+                self._ending = True
                 try:
                     r.on_end(end)
                 except Exception:  # noqa: BLE001 - the supervisor must outlive a bad callback
                     log.exception("job %d: handling its end failed", r.job)
+                finally:
+                    with self._lock:
+                        self._ending = False
+                        self._running = None
 
     def _start(self, job: int, fn: Callable[..., Any], args: tuple, on_end: Callable) -> None:
         now = time.monotonic()

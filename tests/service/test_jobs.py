@@ -174,3 +174,29 @@ def test_no_worker_outlives_a_killed_daemon(tmp_path) -> None:
         if owner.poll() is None:
             owner.kill()
     assert not _alive(child), "a job's child process outlived the daemon"
+
+
+def test_busy_until_the_end_is_handled_and_the_handler_may_chain(runner: JobRunner) -> None:
+    seen: list[bool] = []
+    chained: list[JobEnd] = []
+    done = threading.Event()
+
+    def first_end(end: JobEnd) -> None:
+        seen.append(runner.busy)  # storing the result: a trigger now must wait
+        refused: list[Exception] = []
+
+        def other() -> None:
+            try:
+                runner.submit(_ok, (1,), print)
+            except RuntimeError as exc:
+                refused.append(exc)
+
+        t = threading.Thread(target=other)
+        t.start()
+        t.join()
+        seen.append(bool(refused))
+        runner.submit(_ok, (3,), lambda e: (chained.append(e), done.set()))  # the chain
+
+    runner.submit(_ok, (1,), first_end)
+    assert done.wait(60)
+    assert seen == [True, True] and chained[0].result == 6
