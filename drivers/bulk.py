@@ -204,7 +204,12 @@ class Engine:
             rows = np.empty((0, length), dtype=np.uint8)
         rejected = np.zeros(0, dtype=np.int64)
         undecided = np.zeros(0, dtype=np.int64)
-        if starts.shape[0]:
+        # Misalignment needs a possible header inside a frame: two candidates closer than a
+        # frame length, or (not final) a header prefix at the end of buf inside the last frame.
+        if starts.shape[0] and (
+            bool((cand[1:] - cand[:-1] < length).any())
+            or (not final and int(starts[-1]) + length > n - len(fmt.header) + 1)
+        ):
             reject, wait = self._misaligned(buf, final, starts, cand)
             if reject.any():
                 rejected = starts[reject]
@@ -288,16 +293,23 @@ class Engine:
         header = self.fmt.header
         reject = np.zeros(starts.shape[0], dtype=bool)
         wait = np.zeros(starts.shape[0], dtype=bool)
-        # possible headers inside each frame: whole ones, and (not final) one cut by the end
-        k = np.searchsorted(cand, starts, side="right")
-        inside = (k < cand.shape[0]) & (cand[np.minimum(k, cand.shape[0] - 1)] < starts + length)
+        # possible headers inside each frame: whole ones (then two candidates are closer than
+        # a frame length), and (not final) one cut by the end of buf
+        if cand.shape[0] > 1 and bool((np.diff(cand) < length).any()):
+            k = np.searchsorted(cand, starts, side="right")
+            nxt = cand[np.minimum(k, cand.shape[0] - 1)]
+            inside = (k < cand.shape[0]) & (nxt < starts + length)
+        else:
+            inside = np.zeros(starts.shape[0], dtype=bool)
         tail = n
-        if not final:
+        if not final and int(starts[-1]) + length > n - len(header) + 1:
             for q in range(max(0, n - len(header) + 1), n):
                 if header.startswith(bytes(buf[q:n])):
                     tail = q
                     break
             inside |= (starts < tail) & (tail < starts + length)
+        if not inside.any():
+            return reject, wait
         for i in np.flatnonzero(inside).tolist():
             s = int(starts[i])
             after = s + length
@@ -435,11 +447,20 @@ class Engine:
             gap_free = lost == 0
             if not first_ok:
                 gap_free[0] = False
-            period = _ffill(dt.astype(np.float64), gap_free, state.period_ticks)
+            seed = state.period_ticks
             fallback = 1.0 / (self.config.rate_hz * self.fmt.timestamp_scale_s)
+            free = np.flatnonzero(gap_free)
+            if free.shape[0]:
+                state.period_ticks = float(dt[free[-1]])
+            # no frame period is shorter than the shortest candidate: if even that shows no
+            # extra wrap anywhere, there is none (the usual case, without the forward fill)
+            shortest = min(float(dt[free].min()) if free.shape[0] else math.inf, fallback)
+            if math.isfinite(seed):
+                shortest = min(shortest, seed)
+            if shortest > 0 and not bool((dt / shortest - lost >= modulus / 2).any()):
+                return lost
+            period = _ffill(dt.astype(np.float64), gap_free, seed)
             period = np.where(np.isfinite(period), period, fallback)
-            if gap_free.any():
-                state.period_ticks = float(dt[np.flatnonzero(gap_free)[-1]])
             clock_lost = np.rint(dt / period) - 1
         else:
             prev = np.empty(arrival.shape[0], dtype=np.float64)
@@ -448,6 +469,8 @@ class Engine:
             clock_lost = np.rint((arrival - prev) * self.config.rate_hz) - 1
         if not first_ok:
             clock_lost[0] = np.nan
+        if not bool((clock_lost - lost >= modulus / 2).any()):  # NaN compares False
+            return lost
         return _wrapped_loss(lost, clock_lost, modulus)
 
 

@@ -90,6 +90,7 @@ class StreamDecoder:
 
 
 def _chunks(marks: list[tuple[int, float]]) -> Chunks:
-    ends = np.fromiter((e for e, _ in marks), dtype=np.int64, count=len(marks))
-    times = np.fromiter((t for _, t in marks), dtype=np.float64, count=len(marks))
-    return Chunks(ends, times)
+    if len(marks) == 1:
+        return Chunks(np.array([marks[0][0]], np.int64), np.array([marks[0][1]], np.float64))
+    ends, times = zip(*marks, strict=True)
+    return Chunks(np.array(ends, np.int64), np.array(times, np.float64))
