@@ -169,6 +169,9 @@ class JobRunner:
                 self._cancel = "the service stopped before the job finished"
         self._requests.put(None)
         self._thread.join(timeout=10)
+        r = self._running
+        if r is not None:  # the supervisor did not get to it: never leave a worker behind
+            self._reap(r)
 
     # ---- supervisor thread ------------------------------------------------------------------
     def _supervise(self) -> None:
@@ -264,5 +267,7 @@ class JobRunner:
                 os.killpg(pid, signal.SIGKILL)  # the worker leads its group (swarm children)
             except (ProcessLookupError, PermissionError):
                 pass
+            if r.process.is_alive():  # still starting up: it has no group of its own yet
+                r.process.kill()
         r.process.join(5.0)
         r.conn.close()

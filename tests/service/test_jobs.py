@@ -200,3 +200,19 @@ def test_busy_until_the_end_is_handled_and_the_handler_may_chain(runner: JobRunn
     runner.submit(_ok, (1,), first_end)
     assert done.wait(60)
     assert seen == [True, True] and chained[0].result == 6
+
+
+def test_cancel_right_after_start_leaves_no_worker() -> None:
+    """A job cancelled while its worker is still starting (before it has a process group)."""
+    for _ in range(3):
+        runner = JobRunner(timeout_s=60)
+        ends: list[JobEnd] = []
+        runner.submit(_sleep, (60.0,), ends.append)
+        deadline = time.monotonic() + 30
+        while runner._running is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        process = runner._running.process
+        runner.shutdown(wait_s=0)
+        assert [e.status for e in ends] == ["cancelled"]
+        assert not process.is_alive()
