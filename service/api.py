@@ -103,10 +103,19 @@ class CalibrationSummaryOut(BaseModel):
 
 
 class HealthOut(BaseModel):
-    status: str
-    reader: Any
+    status: str  # "ok", or "degraded" with the reasons in ``problems``
+    problems: list[str]
     positions: int
     current_version: int | None
+    service: Any  # the parts' own state: reader, detector, scheduler, publisher, spool
+
+
+class EventOut(BaseModel):
+    id: int
+    created_at: str
+    kind: str
+    message: str
+    data: Any
 
 
 class QueuedOut(BaseModel):
@@ -149,13 +158,30 @@ def create_app(
 
     @app.get("/health", response_model=HealthOut)
     def get_health() -> HealthOut:
-        current = store.current()
+        """``ok``, or ``degraded`` with the reasons (device lost, database down, publish file
+        unwritable, job supervisor gone); the parts' state in ``service``."""
+        parts = health() if health is not None else {}
+        problems = list(parts.get("problems", [])) if isinstance(parts, dict) else []
+        try:
+            current = store.current()
+            positions = store.count_positions()
+        except StoreError as exc:  # /health must answer while the database is down
+            current, positions = None, -1
+            problems.append(f"database: {exc}")
         return HealthOut(
-            status="ok",
-            reader=health() if health is not None else None,
-            positions=store.count_positions(),
+            status="degraded" if problems else "ok",
+            problems=problems,
+            positions=positions,
             current_version=None if current is None else current.version,
+            service=parts,
         )
+
+    @app.get("/log", response_model=list[EventOut])
+    def get_log(limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[EventOut]:
+        """The service's events, newest first: windows stored, jobs started, ended or failed
+        with the reason, versions accepted or rejected, publications, database and device
+        trouble (the same lines the log shows)."""
+        return [EventOut(**e) for e in store.events(limit)]
 
     @app.get("/coefficients", response_model=CalibrationOut, responses={404: {}})
     def get_current() -> CalibrationOut:

@@ -242,6 +242,22 @@ def make_server(service: Service) -> Any:
     return Server(config)
 
 
+def run_server(server: Any, api: Any) -> None:
+    """``server.run()``; a bind failure (the port taken since the start-up check) becomes the
+    one-line input error instead of uvicorn's ``sys.exit(1)``."""
+    from recal.errors import RecalInputError
+
+    try:
+        server.run()
+    except SystemExit as exc:
+        if server.started:
+            raise
+        raise RecalInputError(
+            f"[api] port {api.port} on {api.host} cannot be served (already in use?): change "
+            "[api] port or stop the other program"
+        ) from exc
+
+
 def run_daemon(settings: Settings) -> int:
     """Serve until SIGINT/SIGTERM (at any moment, start-up included). Returns the exit code."""
     stop = threading.Event()
@@ -284,7 +300,7 @@ def run_daemon(settings: Settings) -> int:
     service.reader.start()
     threading.Thread(target=housekeeping, name="housekeeping", daemon=True).start()
     try:
-        server.run()
+        run_server(server, settings.api)
     finally:
         stop.set()
         sd_notify("STOPPING=1")

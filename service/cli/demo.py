@@ -52,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
     from service.daemon import build_service
 
     folder = Path(args.dir).resolve()
+    if args.serve:  # say so now, not after the whole demo has run
+        from service.startup import check_api_port
+
+        check_api_port("127.0.0.1", args.port)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -151,7 +155,7 @@ def _api_token() -> str:
 
 
 def _serve(service, settings) -> int:
-    from service.daemon import make_server
+    from service.daemon import make_server, run_server
 
     url = f"http://{settings.api.host}:{settings.api.port}"
     token = settings.api.token.get_secret_value()
@@ -160,7 +164,7 @@ def _serve(service, settings) -> int:
           f"  curl -X POST -H 'Authorization: Bearer {token}' {url}/recalibrate",
           flush=True)  # fmt: skip
     try:
-        make_server(service).run()
+        run_server(make_server(service), settings.api)
     finally:
         service.close()
     return 0

@@ -48,9 +48,10 @@ def test_health_counts_positions_and_current_version(
 ) -> None:
     assert client.get("/health").json() == {
         "status": "ok",
-        "reader": {"frames": 12},
+        "problems": [],
         "positions": 0,
         "current_version": None,
+        "service": {"frames": 12},
     }
     sid = sqlite_store.add_session("sim")
     sqlite_store.add_positions(sid, simulate_positions(CoefficientSet.seed_truth()).columns)
@@ -263,3 +264,15 @@ def test_history_pages_of_summaries_on_both_databases(
     assert (
         len(client.get("/coefficients/history", params={"full": True, "limit": 1000}).json()) == 5
     )
+
+
+def test_health_degraded_with_reasons_and_the_log(sqlite_store: Store, tmp_path: Path) -> None:
+    parts = {"problems": ["reader: device /dev/ttyUSB0 is not connected"]}
+    app = create_app(sqlite_store, Publisher(tmp_path / "c.json"), health=lambda: parts)
+    with TestClient(app) as http:
+        body = http.get("/health").json()
+        assert body["status"] == "degraded" and body["problems"] == parts["problems"]
+        sqlite_store.add_event("job", "recalibration 1 not possible: 4 positions", {"job": 1})
+        log = http.get("/log", params={"limit": 5}).json()
+        assert log[0]["kind"] == "job" and "not possible" in log[0]["message"]
+        assert http.get("/log", params={"limit": 0}).status_code == 422
