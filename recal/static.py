@@ -6,15 +6,20 @@ below a threshold; the statistic per triad is the trace of the moving covariance
 three per-axis variances), which does not depend on the triad's orientation. Runs of quiet frames
 are trimmed by ``edge_trim_s`` at both ends and kept when at least ``min_duration_s`` remains.
 
-Thresholds are given, or learned from an initial still period: ``threshold_k`` times the median
-of the statistic over that period (the idea of imu_tk, with a median so that one bump in the
-still period does not raise the bar).
+Thresholds are given, or k times a noise floor: learned from an initial still period (the
+median of the statistic over it, the idea of imu_tk), given as a :class:`NoiseFloor`, or, with
+none of these, learned from the recording itself by :func:`estimate_noise_floor` (the median
+trace of its quietest blocks; :func:`detect_static` does that first pass itself).
 
 Faults: an invalid-status frame, or a sequence gap (``lost_before > 0``), longer than
-``max_gap_frames`` (default 0: every one) *splits* a static run like a motion edge (with the same
-edge trim). A piece that is then too short is rejected and counted under that fault. Shorter
-holes are tolerated: the missing or invalid frames are left out of every statistic and counted in
-the window's ``frames_lost`` / ``frames_invalid``.
+``max_gap_frames`` (default 5) *splits* a static run like a motion edge (with the same edge
+trim). A piece that is then too short is rejected and counted under that fault. Shorter holes are
+bridged: the missing or invalid frames are left out of every statistic and counted in the
+window's ``frames_lost`` / ``frames_invalid``.
+
+Each window also gets the standard error of its means with correlated noise included, from
+Allan statistics over blocks of its own frames; :func:`pooled_standard_errors` pools them over a
+recording (docs/engine.md, "Correlated noise").
 
 :class:`StaticDetector` is the one implementation; :func:`detect_static` feeds it the whole
 recording in slices. Decisions are made from chunk-independent sums (van Herk blocks aligned on
@@ -1081,14 +1086,21 @@ def _fit_noise(avar: np.ndarray, dof: np.ndarray, t: np.ndarray) -> tuple[float,
     if t.shape[0] >= 3:
         octaves = np.log2(t[-1] / t[0]) + 1
         taus = t[0] * 2.0 ** (np.arange(round(octaves * _TAU_PER_OCTAVE) + 1) / _TAU_PER_OCTAVE)
-        for tau in taus:
-            X = np.column_stack((white, w * _gm_allan(t / tau) / a))
-            coef = np.linalg.lstsq(X, w, rcond=None)[0]
-            if (coef < 0).any():
-                continue  # the one-column fits are already covered by the white-only fit
-            ssr = float(np.sum((w - X @ coef) ** 2))
-            if ssr < best[0]:
-                best = (ssr, float(coef[0]), float(coef[1]), float(tau))
+        # Two-column least squares for every tau at once, through the 2 x 2 normal equations.
+        gm = w * _gm_allan(t[None, :] / taus[:, None]) / a  # (taus, levels)
+        a11, a12, a22 = white @ white, gm @ white, np.einsum("ij,ij->i", gm, gm)
+        b1, b2 = white @ w, gm @ w
+        det = a11 * a22 - a12 * a12
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c1 = (a22 * b1 - a12 * b2) / det
+            c2 = (a11 * b2 - a12 * b1) / det
+        ssr = w @ w - 2 * (c1 * b1 + c2 * b2) + c1 * c1 * a11 + 2 * c1 * c2 * a12 + c2 * c2 * a22
+        # Only both-positive fits: the one-column ones are covered by the white-only fit.
+        usable = (c1 >= 0) & (c2 > 0) & np.isfinite(ssr) & (det > 0)
+        if usable.any():
+            i = int(np.argmin(np.where(usable, ssr, np.inf)))
+            if ssr[i] < best[0]:
+                best = (float(ssr[i]), float(c1[i]), float(c2[i]), float(taus[i]))
         if ssr_white - best[0] < _GM_SIGNIFICANCE:
             return q, 0.0, 1.0
     return best[1], best[2], best[3]
