@@ -56,13 +56,14 @@ class JobEnd:
         return self.status == "ok"
 
 
-def die_with_parent() -> None:
-    """In a child process: kill this process's whole group as soon as its parent is gone.
+def die_with_parent(parent: int) -> None:
+    """In a child process: kill this process's whole group as soon as ``parent`` (the pid of
+    the process that started it) is no longer its parent, which is at once if it died while
+    this one was still starting up.
 
     Call it in a process that leads its own group (``os.setpgid(0, 0)``) so that the group is
     the job and its children, nothing else.
     """
-    parent = os.getppid()
 
     def watch() -> None:
         while os.getppid() == parent:
@@ -72,9 +73,9 @@ def die_with_parent() -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
-def _worker_main(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+def _worker_main(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
     os.setpgid(0, 0)  # the job's own group: the supervisor kills it whole (swarm children too)
-    die_with_parent()
+    die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
@@ -210,7 +211,7 @@ class JobRunner:
         try:
             recv, send = self._ctx.Pipe(duplex=False)
             process = self._ctx.Process(
-                target=_worker_main, args=(send, fn, args), name=f"recal-job-{job}"
+                target=_worker_main, args=(send, fn, args, os.getpid()), name=f"recal-job-{job}"
             )
             process.start()
             send.close()
