@@ -67,6 +67,8 @@ class Service:
             h = self.reader.health()
             if not h.running:
                 out.append("reader: the reader thread has stopped")
+            elif getattr(h, "problem", None):  # disconnected, or connected but silent
+                out.append(f"reader: {self.settings.device.url}: {h.problem}")
             elif not h.connected:
                 out.append(f"reader: device {self.settings.device.url} is not connected"
                            + (f" ({h.last_error})" if h.last_error else ""))  # fmt: skip
