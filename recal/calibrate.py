@@ -355,20 +355,8 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
     return notes
 
 
-def calibrate(
-    positions: Positions,
-    options: CalibrationOptions | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> CalibrationResult:
-    """Recalibrate from static positions. Raises :class:`RecalInputError` for unusable input."""
-    opt = options or CalibrationOptions()
-    t_start = time.perf_counter()
-    if opt.method not in METHODS:
-        raise RecalInputError(f"--method must be one of {', '.join(METHODS)}, not {opt.method!r}")
-    if opt.method != "lm" and opt.mc_runs < 1:
-        raise RecalInputError("--mc must be at least 1")
-    if not -90 <= opt.latitude_deg <= 90:
-        raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
+def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
+    """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes."""
     sensors = _resolve_sensors(positions, opt.sensor)
     notes: list[str] = []
     prior_scale = opt.prior.values.get("gyro.scale") if opt.prior is not None else None
@@ -390,6 +378,38 @@ def calibrate(
         prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
     problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0)
     typical = layout.typical(theta0)
+    return sensors, notes, layout, theta0, prior_source, problem, typical
+
+
+def check_design(positions: Positions, options: CalibrationOptions | None = None) -> None:
+    """Raise :class:`RecalInputError` when ``calibrate`` would refuse these positions for their
+    design (too few, or orientations that cannot separate scale and bias): at the prior, on the
+    window noise when the positions carry it, else on structural rank alone (the decision on the
+    estimated noise needs a fit). Cheap, so a service can answer a trigger with the reason."""
+    opt = options or CalibrationOptions()
+    _, _, _, theta0, _, problem, typical = _set_up(positions, opt)
+    if problem.noise_known:
+        _decided(analyze(problem, theta0, typical))
+    else:
+        _decided(analyze(problem, theta0, typical, info_min=0.0))
+
+
+def calibrate(
+    positions: Positions,
+    options: CalibrationOptions | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> CalibrationResult:
+    """Recalibrate from static positions. Raises :class:`RecalInputError` for unusable input."""
+    opt = options or CalibrationOptions()
+    t_start = time.perf_counter()
+    if opt.method not in METHODS:
+        raise RecalInputError(f"--method must be one of {', '.join(METHODS)}, not {opt.method!r}")
+    if opt.method != "lm" and opt.mc_runs < 1:
+        raise RecalInputError("--mc must be at least 1")
+    if not -90 <= opt.latitude_deg <= 90:
+        raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
+    setup = _set_up(positions, opt)
+    sensors, notes, layout, theta0, prior_source, problem, typical = setup
     evaluations = 0
     theta_fit: np.ndarray | None = None  # an LM optimum on report.basis, when one exists
     if problem.noise_known:

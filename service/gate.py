@@ -101,6 +101,11 @@ def _check_verdict(result: CalibrationResult, cfg: GateConfig) -> list[str]:
 def _check_chi2(result: CalibrationResult, cfg: GateConfig) -> list[str]:
     if math.isfinite(result.chi2_red) and result.chi2_red <= cfg.max_chi2_red:
         return []
+    if not math.isfinite(result.chi2_red):
+        return [
+            "exactly determined: no redundant equation, so the residuals cannot check this fit; "
+            "it needs more positions (or orientations) before it can be accepted"
+        ]
     return [
         f"chi2_red {result.chi2_red:.3g} exceeds {cfg.max_chi2_red:g}: the residuals exceed "
         "the window noise (wrong latitude or units, motion in a window, or a missing effect)"

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from recal.calibrate import CalibrationOptions, calibrate
+from recal.calibrate import CalibrationOptions, calibrate, check_design
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
 from recal.positions import Positions
@@ -469,6 +469,12 @@ class Scheduler:
                 height_m=s.site.height_m,
                 prior=self._prior(previous),
             )
+            try:  # a design the engine would refuse is refused now, with its reason
+                check_design(positions, options)
+            except RecalInputError as exc:
+                raise SchedulerRefused(
+                    f"the {len(ids)} stored positions cannot be used: {exc}"
+                ) from None
             args = (positions.columns, options, previous, s.gate.model_dump())
             method = options.method
             self._finished.clear()

@@ -78,26 +78,19 @@ def test_bad_positions_files(case, tmp_path, capsys):
 
 
 def test_too_few_positions(tmp_path, capsys):
-    path = tmp_path / "few.csv"
-    assert (
-        main(
-            [
-                "simulate",
-                "--design",
-                "random",
-                "--positions",
-                "6",
-                "--sensor",
-                "gyro",
-                "-o",
-                str(path),
-            ]
-        )
-        == 0
-    )
+    """Rank decides, not counting: 5 gyro positions cannot show 9 directions (refused with the
+    rank), 9 are exactly determined (estimated, and the output says the fit is unchecked)."""
+    few, exact = tmp_path / "few.csv", tmp_path / "exact.csv"
+    for path, n in ((few, 5), (exact, 9)):
+        args = ["simulate", "--design", "random", "--positions", str(n), "--sensor", "gyro"]
+        assert main([*args, "-o", str(path)]) == 0
     capsys.readouterr()
-    assert main(["calibrate", str(path)]) == 2
-    assert "6 positions give 6 invariant equations" in capsys.readouterr().err
+    assert main(["calibrate", str(few)]) == 2
+    err = capsys.readouterr().err
+    assert "unusable design" in _lines(err)[-1] and "rank 5 of 12" in err
+    assert main(["calibrate", str(exact)]) == 0
+    out = capsys.readouterr().out
+    assert "exactly determined" in out
 
 
 def test_degenerate_heading_only_design(tmp_path, capsys):

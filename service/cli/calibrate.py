@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from typing import TYPE_CHECKING
 
@@ -195,7 +196,10 @@ def format_result(r: CalibrationResult) -> str:
         lines.append(
             f"{n:12s} {v['rms_before']:12.4g} {v['rms_after']:12.4g} {floor}  [{v['unit']}]"
         )
-    lines.append(f"chi2_red = {r.chi2_red:.3f}")
+    if math.isfinite(r.chi2_red):
+        lines.append(f"chi2_red = {r.chi2_red:.3f}")
+    else:
+        lines.append("chi2_red = n/a (exactly determined: the residuals cannot check the fit)")
     lines.append("")
     lines.append(f"observability: {r.observability.verdict} -- {r.observability.message}")
     if any(r.observability.share[r.observability.estimated] < 0.99):

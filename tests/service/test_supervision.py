@@ -98,6 +98,15 @@ def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
             service.scheduler.trigger("manual")
         with pytest.raises(SchedulerRefused, match="scheduler.min_positions"):
             service.scheduler.trigger("auto")
+        # four stored windows: the engine's own reason, at once (not a 202 and a failed job)
+        from recal.coefficients import CoefficientSet
+        from recal.simulate import simulate_positions
+
+        four = simulate_positions(CoefficientSet.seed_truth(), design="random", n_positions=4)
+        service.store.add_positions(service.session_id, four.columns)
+        with pytest.raises(SchedulerRefused, match="4 stored positions cannot be used.*rank"):
+            service.scheduler.trigger("manual")
+        assert not service.scheduler.busy
     finally:
         service.close(wait_s=0)
 
