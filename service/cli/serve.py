@@ -22,6 +22,13 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     import logging
+    import signal
+    import sys
+
+    # a stop asked for while loading and checking the settings is a clean exit (run_daemon
+    # installs its own handlers before it opens anything)
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: sys.exit(0))
 
     from service.config import load_settings
     from service.daemon import run_daemon

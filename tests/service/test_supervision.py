@@ -251,3 +251,54 @@ def test_sigterm_to_the_whole_group_mid_job_exits_0(tmp_path, capture) -> None:
             os.killpg(proc.pid, signal.SIGKILL)
         if store is not None:
             store.close()
+
+
+def test_start_republishes_what_a_crash_left_behind(tmp_path, make_record) -> None:
+    """A crash between the commit of an accepted version and the file write: the next start
+    writes the file; an unwritable file is 'degraded' with the reason, then written when it can."""
+    import json
+
+    url = f"sqlite:///{tmp_path / 'r.db'}"
+    store = Store(url)
+    store.create_schema()
+    version = store.add_calibration(make_record())
+    store.close()
+    settings = _settings(url, tmp_path)
+    service = build_service(settings, with_reader=False)
+    try:
+        published = json.loads((tmp_path / "c.json").read_text())
+        assert published["version"] == version
+        (tmp_path / "c.json").unlink()
+        (tmp_path / "c.json").mkdir()  # the file cannot be written now
+        service.sync_published()
+        health = service.health()
+        assert health["status"] == "degraded"
+        assert any(p.startswith("publisher: cannot write") for p in health["problems"])
+        (tmp_path / "c.json").rmdir()
+        service.tick()  # housekeeping retries at once after a failure
+        assert json.loads((tmp_path / "c.json").read_text())["version"] == version
+        assert service.health()["status"] == "ok"
+    finally:
+        service.close(wait_s=0)
+
+
+def test_sigterm_during_start_exits_0(tmp_path, capture) -> None:
+    (tmp_path / "capture.bin").write_bytes(capture)
+    (tmp_path / "recal.toml").write_text(
+        f'database_url = "sqlite:///{tmp_path / "r.db"}"\npublish_path = "{tmp_path / "c.json"}"\n'
+        f'[device]\nurl = "replay://{tmp_path / "capture.bin"}?speed=1&rate=100"\n'
+        f"rate_hz = 100\n[api]\nport = {_free_port()}\n"
+    )
+    # while importing (before any handler: systemd counts death by SIGTERM as a clean stop),
+    # while loading and checking the settings, and while learning the noise floor
+    for delay in (0.3, 0.8, 2.0):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "service.cli.main", "serve", "--config",
+             str(tmp_path / "recal.toml")],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        time.sleep(delay)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0 or (delay < 0.5 and proc.returncode == -signal.SIGTERM), err
+        assert "error" not in err.lower(), err
