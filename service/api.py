@@ -57,8 +57,8 @@ _DOCS_ASSETS = "/docs-assets"
 DbId = Annotated[int, Path(ge=1, le=MAX_DB_INT)]
 
 
-class CalibrationOut(BaseModel):
-    """A stored calibration; ``document`` is the ``recal calibrate --json`` object."""
+class _VersionOut(BaseModel):
+    """What every listing of a stored calibration shows."""
 
     version: int
     created_at: datetime
@@ -66,9 +66,14 @@ class CalibrationOut(BaseModel):
     method: str
     accepted: bool
     reasons: list[str]
+    prior_version: int | None
+
+
+class CalibrationOut(_VersionOut):
+    """A stored calibration; ``document`` is the ``recal calibrate --json`` object."""
+
     document: dict[str, Any]
     positions_used: list[int]
-    prior_version: int | None
 
     @classmethod
     def of(cls, record: CalibrationRecord) -> CalibrationOut:
@@ -86,16 +91,9 @@ class CalibrationOut(BaseModel):
         )
 
 
-class CalibrationSummaryOut(BaseModel):
+class CalibrationSummaryOut(_VersionOut):
     """One line of the history: the record without its document, plus its key figures."""
 
-    version: int
-    created_at: datetime
-    trigger: str
-    method: str
-    accepted: bool
-    reasons: list[str]
-    prior_version: int | None
     positions: int | None
     chi2_red: float | None
     verdict: str | None
