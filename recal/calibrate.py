@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -31,16 +31,27 @@ from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
 from recal.model import Model, ParameterLayout
-from recal.observability import INFO_MIN, ROTATION_REASON, ObservabilityReport, analyze
+from recal.observability import (
+    COMMON_ROTATION_REASON,
+    INFO_MIN,
+    ROTATION_REASON,
+    ObservabilityReport,
+    analyze,
+)
 from recal.phases import paper_phases, whitened_phase
 from recal.positions import Positions
 from recal.problem import Problem
 from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.slews import DEG_H_TO_RAD_S, Slews
 from recal.swarm import SwarmConfig
 from recal.terms import Term, catalogue_terms
 
 METHODS = ("lm",) + SWARM_METHODS
-UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g"}
+UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad"}
+#: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
+#: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
+#: so the FOG's 0.05 deg/h would call every bias such a gyro's windows can give "not seen".
+SLEW_GYRO_BIAS_TYPICAL_DPH = 10.0 * OMEGA_IE_DEG_H
 
 
 @dataclass(frozen=True)
@@ -71,6 +82,7 @@ class CalibrationOptions:
     cycles: int = 3
     indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
     t0_c: float = 25.0
+    slews: Slews | None = None  # gyro increments between the windows (recal.slews), or None
 
 
 @dataclass
@@ -120,6 +132,17 @@ class CalibrationResult:
                 "indicator_eq14_after": float(ind_after[n][0]),
                 "per_position": [float(v) for v in after[n][0]],
             }
+            if n == "slew":
+                out[n]["per_slew"] = out[n].pop("per_position")
+                out[n]["slews"] = self.problem.n_of(n) // 2
+                out[n]["earth_rate"] = (
+                    "removed with the first window's calibrated rest rate"
+                    if self.problem.slew_earth_rate
+                    else "left in, as noise (the gyro cannot see Earth rate)"
+                )
+                if noise:
+                    w = after[n][0] / self.problem.sigma[n]
+                    out[n]["chi2_red"] = float(np.mean(w * w))
         return out
 
     def uncertainty_kind(self) -> str:
@@ -344,7 +367,13 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
     for d, r in zip(report.held_directions, report.held_reasons, strict=True):
         reasons.setdefault(r, []).append(d)
     for r, dirs in reasons.items():
-        if r != ROTATION_REASON:  # the rotations are expected and listed in observability
+        if r == COMMON_ROTATION_REASON:
+            notes.append(
+                f"with slews the gyro frame is estimated relative to the accelerometer frame; "
+                f"{r} ({len(dirs)} direction(s): {'; '.join(dirs)}); an outside reference of "
+                "known rotations would show it"
+            )
+        elif r != ROTATION_REASON:  # the rotations are expected and listed in observability
             notes.append(f"held at the prior ({len(dirs)} direction(s): {'; '.join(dirs)}): {r}")
     if report.redundancy == 0:
         notes.append(
@@ -355,18 +384,100 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
     return notes
 
 
+def _usable_slews(positions: Positions, opt: CalibrationOptions, notes: list[str]) -> Slews | None:
+    """The slews of ``opt`` when they belong to these positions, else None (with a note)."""
+    slews = opt.slews
+    if slews is None:
+        return None
+    if slews.n_dropped:
+        reasons = ", ".join(f"{k} {v}" for k, v in slews.dropped.items() if v)
+        notes.append(
+            f"{slews.n_dropped} slew(s) dropped: they cannot be integrated ({reasons}); their "
+            "windows still serve as positions"
+        )
+    cols = positions.columns
+    why = (
+        "the positions have no start_s/end_s columns"
+        if "start_s" not in cols or "end_s" not in cols
+        else slews.mismatch(cols["start_s"], cols["end_s"])
+    )
+    if why:
+        notes.append(f"slews not used: {why}")
+        return None
+    return slews if len(slews) else None
+
+
+def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
+    """A gyro prior from the slews for a gyro that cannot see Earth rate: a common scale factor
+    by a batched search on the slew residuals (a coarse log grid over a decade either side of
+    the ratio of raw integrated output to the gravity-direction change, both signs, then a fine
+    one), the bias the mean window output over that scale, misalignment zero."""
+    slews = problem.slews
+    assert slews is not None
+    sl = problem.layout.term_slices()
+    theta = np.array(theta0, float)
+    theta[sl["gyro.misalignment"]] = 0.0
+    n0 = problem.positions.gyro.mean(axis=0)  # zero-rate output: Earth rate is below the noise
+    f = problem.physical(theta[None])["accel"][0]
+    u = f / np.linalg.norm(f, axis=1, keepdims=True)
+    seen = np.arccos(np.clip(np.sum(u[slews.first] * u[slews.second], axis=1), -1, 1))
+    raw = np.linalg.norm(slews.sums.sum(axis=1), axis=1)  # output units x s
+    big = seen > 0.2
+    ratio = raw[big] * DEG_H_TO_RAD_S / seen[big] if big.any() else raw * DEG_H_TO_RAD_S
+    centre = float(np.median(ratio)) if ratio.size and np.median(ratio) > 0 else 1.0
+
+    def best(scales: np.ndarray) -> float:
+        cand = np.repeat(theta[None], scales.size, axis=0)
+        cand[:, sl["gyro.scale"]] = scales[:, None]
+        cand[:, sl["gyro.bias"]] = n0[None] / scales[:, None]
+        r = problem.raw_residuals(cand)["slew"]
+        cost = np.where(np.isfinite(r).all(axis=1), np.sum(r * r, axis=1), np.inf)
+        return float(scales[int(np.argmin(cost))])
+
+    coarse = centre * np.exp(np.linspace(-np.log(10.0), np.log(10.0), 241))
+    k = best(np.concatenate([coarse, -coarse]))
+    k = best(k * np.exp(np.linspace(-0.03, 0.03, 121)))
+    theta[sl["gyro.scale"]] = k
+    theta[sl["gyro.bias"]] = n0 / k
+    return theta
+
+
 def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
     """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes."""
     sensors = _resolve_sensors(positions, opt.sensor)
     notes: list[str] = []
+    slews = _usable_slews(positions, opt, notes) if positions.has_gyro else None
     prior_scale = opt.prior.values.get("gyro.scale") if opt.prior is not None else None
     problem_gyro = _earth_rate_invisible(positions, prior_scale) if "gyro" in sensors else None
-    if problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
+    from_slews = bool(problem_gyro) and slews is not None and positions.has_accel
+    if from_slews and opt.sensor == "gyro":
+        raise RecalInputError(
+            problem_gyro + "; the slews could calibrate it with the accelerometers: leave "
+            "--sensor out or use --sensor both"
+        )
+    if from_slews:
+        sensors = ("gyro", "accel")
+        notes.append(
+            f"gyro calibrated from {len(slews)} slews (scale and misalignment; bias from the "
+            f"still windows): Earth rate is not visible ({problem_gyro.split(': Earth')[0]}), "
+            f"so its bias's typical change is taken as {SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h"
+        )
+    elif problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
         sensors = ("accel",)  # the default calibrates what the data can show
         notes.append(f"gyro not calibrated: {problem_gyro}")
     elif problem_gyro:
         raise RecalInputError(problem_gyro + "; use --sensor accel")
+    if slews is not None and set(sensors) != {"gyro", "accel"}:
+        notes.append("slews not used: they need both triads calibrated together")
+        slews = None
     models = build_models(sensors, opt.effects, opt.plugin_terms, opt.t0_c)
+    if from_slews:
+        models = tuple(
+            Model(m.sensor, tuple(
+                replace(t, typical=(SLEW_GYRO_BIAS_TYPICAL_DPH,) * 3) if t.name == "gyro.bias"
+                else t for t in m.terms))
+            for m in models
+        )  # fmt: skip
     layout = ParameterLayout(models)
     if opt.prior is not None:
         theta_data = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
@@ -376,7 +487,26 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
     else:
         theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
         prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
-    problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0)
+
+    def build(theta: np.ndarray) -> Problem:
+        return Problem.build(
+            positions, models, opt.latitude_deg, opt.height_m, theta,
+            slews=slews, slew_earth_rate=not from_slews,
+        )  # fmt: skip
+
+    problem = build(theta0)
+    if from_slews and opt.prior is None:
+        theta0 = slew_prior(problem, theta0)
+        problem = build(theta0)
+        prior_source = (
+            "data-derived (accel: ellipsoid fit; gyro: common scale from the slews, bias the "
+            "mean window output; misalignment zero)"
+        )
+    if slews is not None:
+        notes.append(
+            f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
+            f"included; {np.median(slews.duration_s):.3g} s median)"
+        )
     typical = layout.typical(theta0)
     return sensors, notes, layout, theta0, prior_source, problem, typical
 

@@ -168,6 +168,12 @@ def _group_svd(Jp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 #: Held-direction reason for a rotation of a triad's frame, which no norm can see.
 ROTATION_REASON = "a rotation of the frame: no norm can see it (conventions section 3)"
+#: With slews: the rotation of both triads together relative to the case, which no invariant
+#: sees without an outside reference; the accelerometer frame is the reference.
+COMMON_ROTATION_REASON = (
+    "a rotation of both triads together relative to the case: no invariant sees it without an "
+    "outside reference; held with the accelerometer frame as the reference"
+)
 _ANTISYMMETRIC_PAIRS = (("Exz", "Eyz"), ("Exy", "Ezy"), ("Eyx", "Ezx"))
 
 
@@ -183,6 +189,16 @@ def rotation_span(layout: ParameterLayout) -> np.ndarray:
                 c = np.zeros(layout.size)
                 c[names.index(ia)], c[names.index(ib)] = 1.0, -1.0
                 cols.append(c / np.sqrt(2.0))
+    return np.array(cols).T if cols else np.zeros((layout.size, 0))
+
+
+def accel_rotation_span(layout: ParameterLayout) -> np.ndarray:
+    """The accelerometer's columns of :func:`rotation_span`: with slews, the common rotation of
+    both triads is held there (the accelerometer frame is the reference)."""
+    span = rotation_span(layout)
+    names = layout.names
+    accel = np.array([n.startswith("accel.") for n in names])
+    cols = [c for c in span.T if np.all(c[~accel] == 0)] if span.size else []
     return np.array(cols).T if cols else np.zeros((layout.size, 0))
 
 
@@ -246,16 +262,32 @@ def analyze(
     structural = max(rcond * s_max, 1e-300)
     threshold = max(structural, info_min)
     rotations = rotation_span(layout)
+    # with slews the relative rotation of the triads is seen, their common rotation is not: hold
+    # it in the accelerometer's antisymmetric misalignment (rows of the forced-held columns)
+    forced = accel_rotation_span(layout) if "slew" in problem.invariant_names else np.zeros((D, 0))
     Q = np.zeros((R, 0))  # orthonormal residual-space span claimed so far
     basis_cols, null_cols, reasons, s_kept, s_held = [], [], [], [], []
     earlier: list[str] = []
     for label, idx in priority_groups(layout):
         Jg = J[:, idx]
-        U, s, Vt = _group_svd(Jg - Q @ (Q.T @ Jg))
+        fixed = forced[idx][:, np.any(forced[idx] != 0, axis=0)] if forced.size else forced[idx]
+        if fixed.shape[1]:
+            # search only the complement of the forced-held columns within the group
+            C = np.linalg.svd(fixed, full_matrices=True)[0][:, fixed.shape[1] :]
+            U, s, Vt = _group_svd((Jg - Q @ (Q.T @ Jg)) @ C)
+            Vg = C @ Vt.T
+            held = np.zeros((D, fixed.shape[1]))
+            held[idx] = fixed
+            null_cols.append(held)
+            reasons += [COMMON_ROTATION_REASON] * fixed.shape[1]
+            s_held.append(np.zeros(fixed.shape[1]))  # held by construction
+        else:
+            U, s, Vt = _group_svd(Jg - Q @ (Q.T @ Jg))
+            Vg = Vt.T
         keep = s >= threshold
         Q = np.hstack([Q, U[:, keep]])
-        V = np.zeros((D, idx.size))
-        V[idx] = Vt.T
+        V = np.zeros((D, Vg.shape[1]))
+        V[idx] = Vg
         basis_cols.append(V[:, keep])
         s_kept.append(s[keep])
         rot, other = _split_rotations(V[:, ~keep], rotations)

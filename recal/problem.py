@@ -5,6 +5,9 @@ At rest every position must satisfy (conventions section 2)
 * gyro norm:  |w_hat| = Omega_ie (15.04107 deg/h)
 * accel norm: |f_hat| = g_local / g0 (WGS-84 normal gravity, in g)
 * dot product (both triads): w_hat . f_hat = Omega_ie * g_local/g0 * sin(latitude)
+* slew (both triads, with :class:`recal.slews.Slews`): the gyro integrated over the motion
+  between windows k and k + 1 carries the gravity direction of window k onto that of window
+  k + 1 (2 residuals per slew, rad; :mod:`recal.slews`)
 
 :meth:`Problem.residuals` evaluates the whitened residuals of all invariants for a *batch* of
 parameter vectors, shape (P, D) -> (P, R), in one numpy call. LM uses P = 1, a swarm uses
@@ -22,13 +25,15 @@ import numpy as np
 
 from recal.errors import RecalInputError
 from recal.model import Model, ParameterLayout
-from recal.positions import Positions
+from recal.positions import GYRO_STD_COLUMNS, Positions
 from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
+from recal.slews import Slews, horizontal_basis, slew_residuals, slew_sigma
+from recal.terms import Term
 
 #: Residual sigma used before any noise information exists (positions without *_std or *_sem
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
 #: re-estimated from the residuals. Observability is never decided on it (only structural rank).
-PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01}
+PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01, "slew": 1e-3}
 #: Positions.noise_source label -> sigma_source label of the invariants it feeds.
 COLUMN_SOURCES = {
     "sem columns": "sem columns",
@@ -36,7 +41,14 @@ COLUMN_SOURCES = {
 }
 #: sigma_source labels that mean the noise is known from the windows.
 KNOWN_SOURCES = frozenset(COLUMN_SOURCES.values()) | {"sem and std columns"}
-INVARIANT_SENSORS = {"gyro_norm": ("gyro",), "accel_norm": ("accel",), "dot": ("gyro", "accel")}
+INVARIANT_SENSORS = {
+    "gyro_norm": ("gyro",),
+    "accel_norm": ("accel",),
+    "dot": ("gyro", "accel"),
+    "slew": ("gyro", "accel"),
+}
+#: Invariants whose residual is linear in the estimated inputs (no squared form in eq. 14).
+_LINEAR = frozenset({"dot", "slew"})
 
 
 @dataclass(frozen=True)
@@ -55,6 +67,12 @@ class Problem:
             "provisional" (no noise information yet: relative weights only, never decide on it)
             or "residuals" (re-estimated from a fit).
         ctx: context columns for terms (temperature, time, specific force).
+        slews: the gyro increments between windows (:mod:`recal.slews`); with both triads they
+            add the "slew" invariant (2 residuals per slew, rad). None: no slews.
+        slew_earth_rate: take Earth's rotation over each slew out with the calibrated rest rate
+            of the first window (a gyro that sees Earth rate); False leaves it in the noise.
+        slew_basis: (S, 2, 3) the two directions orthogonal to gravity at each slew's second
+            window (at the prior) on which the residual is taken.
     """
 
     positions: Positions
@@ -65,6 +83,9 @@ class Problem:
     sigma: Mapping[str, np.ndarray] = field(default_factory=dict)
     sigma_source: Mapping[str, str] = field(default_factory=dict)
     ctx: Mapping[str, np.ndarray] = field(default_factory=dict)
+    slews: Slews | None = None
+    slew_earth_rate: bool = True
+    slew_basis: np.ndarray | None = None
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -76,11 +97,14 @@ class Problem:
         height_m: float = 0.0,
         theta_ref: np.ndarray | None = None,
         use_dot: bool = True,
+        slews: Slews | None = None,
+        slew_earth_rate: bool = True,
     ) -> Problem:
         """Check the columns the models need, build the context and the noise floors.
 
         ``theta_ref`` (the prior) is used to propagate the window noise to the invariants and
-        to estimate the specific force seen by a gyro g-sensitivity term.
+        to estimate the specific force seen by a gyro g-sensitivity term. ``slews`` add the slew
+        invariant when both triads are calibrated (they are ignored otherwise).
         """
         sensors = [m.sensor for m in models]
         for s in sensors:
@@ -100,15 +124,28 @@ class Problem:
             if "start_s" not in positions.columns or "end_s" not in positions.columns:
                 raise RecalInputError(f"{positions.source}: bias drift needs start_s and end_s")
             ctx["time_h"] = 0.5 * (positions.columns["start_s"] + positions.columns["end_s"]) / 3600
+        use_slews = slews is not None and len(slews) > 0 and set(sensors) == {"gyro", "accel"}
+        if use_slews:
+            bad = [
+                t.name
+                for t in models[sensors.index("gyro")].terms
+                if type(t).nonlinear is not Term.nonlinear
+            ]
+            if bad:
+                raise RecalInputError(f"slews: effect {', '.join(bad)} depends on the rate")
         prob = cls(
-            positions, tuple(models), latitude_deg, height_m, use_dot, {}, "provisional", ctx
-        )
+            positions, tuple(models), latitude_deg, height_m, use_dot, {}, "provisional", ctx,
+            slews if use_slews else None, slew_earth_rate,
+        )  # fmt: skip
         layout = prob.layout
         theta = layout.neutral() if theta_ref is None else np.asarray(theta_ref, float)
         if "specific_force_g" in needs:
             if "accel" not in sensors and not positions.has_accel:
                 raise RecalInputError("gyro.g_sensitivity needs accel columns in the positions")
             ctx["specific_force_g"] = prob._specific_force(theta)
+        if use_slews:
+            f = prob._specific_force(theta)
+            prob = replace(prob, slew_basis=horizontal_basis(f[slews.second]))
         return prob.with_sigma(*prob.propagated_sigma(theta))
 
     def _specific_force(self, theta: np.ndarray) -> np.ndarray:
@@ -159,18 +196,26 @@ class Problem:
         names = [f"{s}_norm" for s in self.sensors]
         if self.use_dot and len(self.sensors) == 2:
             names.append("dot")
+        if self.slews is not None:
+            names.append("slew")
         return tuple(names)
+
+    def n_of(self, name: str) -> int:
+        """Residuals of invariant ``name``: one per position, two per slew."""
+        return 2 * len(self.slews) if name == "slew" and self.slews is not None else self.M
 
     def reference(self, name: str) -> float:
         if name == "gyro_norm":
             return OMEGA_IE_DEG_H
         if name == "accel_norm":
             return self.gravity_g
+        if name == "slew":
+            return 0.0
         return dot_reference(self.latitude_deg, self.height_m)
 
     @property
     def n_residuals(self) -> int:
-        return self.M * len(self.invariant_names)
+        return sum(self.n_of(n) for n in self.invariant_names)
 
     def output(self, sensor: str) -> np.ndarray:
         return self.positions.gyro if sensor == "gyro" else self.positions.accel
@@ -200,7 +245,9 @@ class Problem:
         x = self._components(theta)
         out = {}
         for name in self.invariant_names:
-            if name == "dot":
+            if name == "slew":
+                out[name] = self._slew_values(theta, x)
+            elif name == "dot":
                 out[name] = np.einsum("ipm,ipm->pm", x["gyro"], x["accel"])
             else:
                 v = x[name.split("_")[0]]
@@ -208,8 +255,29 @@ class Problem:
                 out[name] = sq if squared else np.sqrt(sq)
         return out
 
+    @cached_property
+    def _slew_ctx(self) -> dict[str, np.ndarray]:
+        """The context of each slew's first window (temperature, time, specific force)."""
+        assert self.slews is not None
+        return {k: np.asarray(v)[self.slews.first] for k, v in self.ctx.items()}
+
+    def _slew_values(self, theta: np.ndarray, x: dict[str, np.ndarray]) -> np.ndarray:
+        """Slew residuals (P, 2 S), rad (:func:`recal.slews.slew_residuals`)."""
+        assert self.slews is not None and self.slew_basis is not None
+        theta = np.atleast_2d(theta)
+        gain, A, offset, _ = self.model("gyro")._parts(
+            theta[:, self._slices["gyro"]], self._slew_ctx
+        )
+        f = x["accel"]  # (3, P, M)
+        f1 = np.moveaxis(f[:, :, self.slews.first], 0, -1)
+        f2 = np.moveaxis(f[:, :, self.slews.second], 0, -1)
+        return slew_residuals(
+            self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate
+        )
+
     def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
-        """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units)."""
+        """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units); the
+        slew invariant (P, 2 S), rad."""
         vals = self._invariant_values(theta, squared=False)
         return {n: v - self.reference(n) for n, v in vals.items()}
 
@@ -222,15 +290,14 @@ class Problem:
         """Seed eq. (13): |x_hat|^2 - ref^2 per position (P, M); the dot product stays linear."""
         vals = self._invariant_values(theta, squared=True)
         return {
-            n: v - (self.reference(n) if n == "dot" else self.reference(n) ** 2)
+            n: v - (self.reference(n) if n in _LINEAR else self.reference(n) ** 2)
             for n, v in vals.items()
         }
 
     def indicator(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Seed 000 eq. (14) per invariant: sqrt(sum((|x|^2 - ref^2)^2) / (M - 1)), shape (P,)."""
-        denom = max(self.M - 1, 1)
         return {
-            n: np.sqrt(np.sum(r * r, axis=1) / denom)
+            n: np.sqrt(np.sum(r * r, axis=1) / max(self.n_of(n) - 1, 1))
             for n, r in self.squared_residuals(theta).items()
         }
 
@@ -242,7 +309,7 @@ class Problem:
         """Expected eq. (14) value from window noise alone, per invariant."""
         out = {}
         for n, s in self.sigma.items():
-            scale = 1.0 if n == "dot" else 2.0 * self.reference(n)
+            scale = 1.0 if n in _LINEAR else 2.0 * self.reference(n)
             out[n] = float(np.sqrt(np.mean((scale * s) ** 2)))
         return out
 
@@ -268,6 +335,7 @@ class Problem:
         x = {k: v[0] for k, v in self.physical(theta[None]).items()}
         sl = self.layout.model_slices()
         sd_in: dict[str, np.ndarray | None] = {}
+        gains: dict[str, np.ndarray] = {}
         kind: dict[str, str] = {}
         for m in self.models:
             sd = self.positions.std_of_mean(m.sensor)
@@ -280,17 +348,22 @@ class Problem:
                     m.forward(th, x[m.sensor] + step, self.ctx)[0]
                     - m.forward(th, x[m.sensor], self.ctx)[0]
                 ) / step
-                sd = sd / np.maximum(np.abs(gain), 1e-300)
+                gains[m.sensor] = np.maximum(np.abs(gain), 1e-300)
+                sd = sd / gains[m.sensor]
             sd_in[m.sensor] = sd
         out, source = {}, {}
         for n in self.invariant_names:
             needed = INVARIANT_SENSORS[n]
-            if any(sd_in[s] is None for s in needed):
-                out[n] = np.full(self.M, PROVISIONAL_SIGMA[n])
+            slew_sd = self._slew_sigma(x, sd_in, gains) if n == "slew" else None
+            if any(sd_in[s] is None for s in needed) or (n == "slew" and slew_sd is None):
+                out[n] = np.full(self.n_of(n), PROVISIONAL_SIGMA[n])
                 source[n] = "provisional"
                 continue
             kinds = {kind[s] for s in needed}
             source[n] = kinds.pop() if len(kinds) == 1 else "sem and std columns"
+            if n == "slew":
+                out[n] = slew_sd
+                continue
             if n == "dot":
                 w, f = x["gyro"], x["accel"]
                 var = np.sum(f**2 * sd_in["gyro"] ** 2 + w**2 * sd_in["accel"] ** 2, axis=1)
@@ -301,6 +374,26 @@ class Problem:
             out[n] = np.sqrt(np.maximum(var, 1e-300))
         return out, source
 
+    def _slew_sigma(
+        self,
+        x: dict[str, np.ndarray],
+        sd_in: dict[str, np.ndarray | None],
+        gains: dict[str, np.ndarray],
+    ) -> np.ndarray | None:
+        """Slew noise (2 S,), rad, from the windows' gyro std and sem and accel sem."""
+        assert self.slews is not None and self.slew_basis is not None
+        if sd_in["gyro"] is None or sd_in["accel"] is None:
+            return None
+        if not all(c in self.positions.columns for c in GYRO_STD_COLUMNS):
+            return None
+        # per-sample gyro std to input units through the local gain, like the window noise
+        std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
+        i, j = self.slews.first, self.slews.second
+        return slew_sigma(
+            self.slews, std_in, sd_in["gyro"], sd_in["accel"], x["accel"][i], x["accel"][j],
+            self.slew_basis, self.slew_earth_rate, self.latitude_deg,
+        )  # fmt: skip
+
     def with_sigma_from_residuals(self, theta: np.ndarray, n_params: int) -> Problem:
         """Replace every sigma not known from noise columns by the dof-corrected residual RMS."""
         raw = self.raw_residuals(theta[None])
@@ -310,6 +403,6 @@ class Problem:
             if self.noise_known_for(n):
                 continue
             rms = float(np.sqrt(np.mean(r[0] ** 2) / dof_frac))
-            out[n] = np.full(self.M, max(rms, 1e-12 * abs(self.reference(n)) + 1e-300))
+            out[n] = np.full(r.shape[1], max(rms, 1e-12 * abs(self.reference(n)) + 1e-300))
             source[n] = "residuals"
         return self.with_sigma(out, source)

@@ -29,6 +29,7 @@ from recal.errors import RecalInputError
 from recal.positions import Positions
 from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
 from recal.simulate import NoiseSpec, TemperatureSpec, design_orientations, truth_model
+from recal.slews import DEFAULT_GROUPS, Slews, build_slews
 from recal.terms import Term
 
 #: Longest session simulated at once, in samples. Each sample holds about 20 float64 values
@@ -284,3 +285,18 @@ def _rotate_into_body(v: np.ndarray, axis: np.ndarray, theta: np.ndarray) -> np.
     the body turned by theta (N,) about ``axis``: Rodrigues with -theta, shape (N, 3)."""
     c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
     return v * c - np.cross(axis, v) * s + np.outer(1.0 - c[:, 0], axis * float(axis @ v))
+
+
+def session_slews(session: Session, groups: int = DEFAULT_GROUPS) -> Slews:
+    """The slews of a simulated session, as ``recal positions`` keeps them: between holds k and
+    k + 1 the gyro outputs from the frame after hold k's last to hold k + 1's first, referenced
+    to hold k's mean output (:func:`recal.slews.build_slews`). Hold rows as in
+    :func:`session_positions`."""
+    period = 1.0 / session.rate_hz
+    pieces = []
+    for k in range(session.n_holds - 1):  # a loop over slews; every sample operation is vectorised
+        a, b = int(session.hold_first[k]), int(session.hold_last[k])
+        samples = session.gyro_out[b + 1 : int(session.hold_first[k + 1]) + 1]
+        pieces.append((k, k + 1, session.gyro_out[a : b + 1].mean(axis=0), samples))
+    start, end = session.hold_start_s, session.hold_end_s
+    return build_slews(pieces, period, start, end, groups=groups)

@@ -1,0 +1,507 @@
+"""The slew invariant: the gyro, integrated over the motion between two static windows, must carry
+the gravity direction measured in the first window onto the one measured in the next.
+
+Norms cannot see a rotation of a triad's frame (conventions section 3). Integrating the gyro over
+each slew (the samples between two consecutive windows) can: the integrated rotation, applied to
+the calibrated accelerometers' gravity direction of window k, predicts the direction of window
+k + 1, and the two must agree (Tedaldi et al., ICRA 2014, the method of imu_tk). The residual has
+2 degrees of freedom per slew (a rotation about the vertical moves no gravity direction).
+
+Data (what ``recal positions`` keeps beside the CSV, :meth:`Slews.to_npz_bytes`): per slew the
+indices of its two windows, the sample period, the window-k gyro output ``N_ref`` and, over ``G``
+groups of consecutive samples (G = :data:`DEFAULT_GROUPS`, padded with empty groups), three sums
+of the output increments ``n_i = (N_i - N_ref) dt`` (output units x s):
+
+    S_g = sum_i n_i,   W_g = sum_i (m_g - 1 - 2 i) n_i,   C_g = 1/2 sum_{i<j} n_i x n_j
+
+Because the gyro model is affine in its output (``alpha_i = M n_i + c``, with
+``M = u A^-1 diag(1/K)``, ``c = u A^-1 (N_ref / K - b) dt`` and ``u`` = deg/h -> rad/s), the
+second-order (Bortz / BCH) rotation vector of a group, ``sum alpha_i + 1/2 sum_{i<j} alpha_i x
+alpha_j``, is exactly
+
+    phi_g = M S_g + m_g c + 1/2 (M W_g) x c + cof(M) C_g,    cof(M) = det(M) M^-T
+
+for every parameter vector: the per-sample coning correction survives the downsampling, and the
+engine integrates ``G`` increments per slew instead of every sample. The groups' quaternions are
+multiplied by a pairwise (tree) product: log2(G) vectorised steps for all P parameter vectors and
+all slews at once.
+
+Everything here is numpy on arrays in memory: no I/O (the npz is produced and parsed as bytes).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from recal.errors import RecalInputError
+from recal.model import inv3
+from recal.reference import OMEGA_IE_RAD_S
+
+#: Groups (integration steps) per slew; a power of two for the pairwise quaternion product.
+DEFAULT_GROUPS = 64
+#: deg/h -> rad/s (the gyro model's input unit to the integration's).
+DEG_H_TO_RAD_S = math.radians(1.0) / 3600.0
+#: Reasons a slew is dropped, as keys of :attr:`Slews.dropped`.
+DROP_REASONS = ("lost_frames", "invalid_frames", "saturated")
+#: Bound on P x slews x groups per batched evaluation (bounds the temporaries, ~25 MB each).
+_BATCH_ELEMENTS = 1 << 20
+_NPZ_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Slews:
+    """The slews of one recording, as downsampled gyro increments (see the module docstring).
+
+    first / second: (S,) row indices of the windows before and after each slew in the positions.
+    period_s: gyro sample period, s. samples: (S,) samples integrated (the slew spans from the
+    last frame of window ``first`` to the first frame of window ``second``: ``samples * period_s``
+    seconds). reference: (S, 3) window-``first`` mean gyro output, output units.
+    group_samples: (S, G) samples per group (0 for padding). sums, weighted, cross: (S, G, 3)
+    the sums S_g, W_g (output units x s) and C_g ((output units x s)^2).
+    window_start_s / window_end_s: (S, 2) times of the two windows, to check the side file
+    against the positions CSV. dropped: reason -> slews dropped (lost or invalid frames, a
+    saturated gyro sample): they cannot be integrated; their windows still serve as positions.
+    """
+
+    first: np.ndarray
+    second: np.ndarray
+    period_s: float
+    samples: np.ndarray
+    reference: np.ndarray
+    group_samples: np.ndarray
+    sums: np.ndarray
+    weighted: np.ndarray
+    cross: np.ndarray
+    window_start_s: np.ndarray
+    window_end_s: np.ndarray
+    dropped: Mapping[str, int] = field(default_factory=lambda: dict.fromkeys(DROP_REASONS, 0))
+
+    def __len__(self) -> int:
+        return int(self.first.shape[0])
+
+    @property
+    def duration_s(self) -> np.ndarray:
+        """(S,) time integrated over each slew, s."""
+        return self.samples * self.period_s
+
+    @property
+    def n_dropped(self) -> int:
+        return int(sum(self.dropped.values()))
+
+    def subset(self, keep: np.ndarray) -> Slews:
+        keep = np.asarray(keep)
+        names = ("first", "second", "samples", "reference", "group_samples", "sums", "weighted")
+        arrays = {n: getattr(self, n)[keep] for n in names + ("cross",)}
+        return Slews(
+            period_s=self.period_s,
+            window_start_s=self.window_start_s[keep],
+            window_end_s=self.window_end_s[keep],
+            dropped=dict(self.dropped),
+            **arrays,
+        )
+
+    # ---- the side file ---------------------------------------------------------------------
+    def to_npz_bytes(self) -> bytes:
+        """The side file ``POSITIONS.slews.npz`` (compressed), as bytes."""
+        buf = io.BytesIO()
+        np.savez_compressed(
+            buf,
+            version=np.array(_NPZ_VERSION),
+            first=self.first.astype(np.int64),
+            second=self.second.astype(np.int64),
+            period_s=np.array(self.period_s),
+            samples=self.samples.astype(np.int64),
+            reference=self.reference,
+            group_samples=self.group_samples.astype(np.int64),
+            sums=self.sums,
+            weighted=self.weighted,
+            cross=self.cross,
+            window_start_s=self.window_start_s,
+            window_end_s=self.window_end_s,
+            dropped_reasons=np.array(list(self.dropped), dtype=str),
+            dropped_counts=np.array(list(self.dropped.values()), dtype=np.int64),
+        )
+        return buf.getvalue()
+
+    @classmethod
+    def from_npz_bytes(cls, data: bytes, source: str = "<slews>") -> Slews:
+        try:
+            z = np.load(io.BytesIO(data), allow_pickle=False)
+            version = int(z["version"])
+            if version != _NPZ_VERSION:
+                raise RecalInputError(f"{source}: slews file version {version} is not supported")
+            out = cls(
+                first=z["first"],
+                second=z["second"],
+                period_s=float(z["period_s"]),
+                samples=z["samples"],
+                reference=z["reference"],
+                group_samples=z["group_samples"],
+                sums=z["sums"],
+                weighted=z["weighted"],
+                cross=z["cross"],
+                window_start_s=z["window_start_s"],
+                window_end_s=z["window_end_s"],
+                dropped=dict(
+                    zip(
+                        [str(r) for r in z["dropped_reasons"]],
+                        [int(c) for c in z["dropped_counts"]],
+                        strict=True,
+                    )
+                ),
+            )
+        except (OSError, ValueError, KeyError) as exc:
+            raise RecalInputError(f"{source}: not a slews file ({exc})") from None
+        return out
+
+    def mismatch(self, start_s: np.ndarray, end_s: np.ndarray) -> str | None:
+        """Why these slews do not belong to positions with these window times, or None."""
+        M = start_s.shape[0]
+        if len(self) == 0:
+            return None
+        if self.first.min() < 0 or self.second.max() >= M:
+            return f"the slews refer to window {int(self.second.max())}, the positions have {M}"
+        rows = np.stack([self.first, self.second], axis=1)
+        tol = 0.5 * self.period_s + 1e-9
+        if not (
+            np.allclose(start_s[rows], self.window_start_s, rtol=0, atol=tol)
+            and np.allclose(end_s[rows], self.window_end_s, rtol=0, atol=tol)
+        ):
+            return "the window times of the slews file differ from the positions file's"
+        return None
+
+
+# ---- downsampling ----------------------------------------------------------------------------
+def group_increments(
+    gyro: np.ndarray, period_s: float, reference: np.ndarray, groups: int = DEFAULT_GROUPS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One slew's samples (n, 3) -> (group_samples (G,), S (G, 3), W (G, 3), C (G, 3)).
+
+    ``n_i = (gyro_i - reference) * period_s``; the samples are cut into ``groups`` runs of
+    nearly equal length (empty groups when n < groups). Vectorised over the samples.
+    """
+    g = np.asarray(gyro, dtype=np.float64)
+    n = g.shape[0]
+    inc = (g - np.asarray(reference, float)) * period_s
+    starts = (np.arange(groups) * n) // groups
+    counts = np.diff(np.append(starts, n))
+    gid = np.repeat(np.arange(groups), counts)
+    local = np.arange(n) - starts[gid]  # index i within its group
+    sums = np.zeros((groups, 3))
+    weighted = np.zeros((groups, 3))
+    cross = np.zeros((groups, 3))
+    if n == 0:
+        return counts, sums, weighted, cross
+    np.add.at(sums, gid, inc)
+    np.add.at(weighted, gid, (counts[gid] - 1 - 2 * local)[:, None] * inc)
+    # sum over i<j inside the group of n_i x n_j = sum_j (exclusive in-group prefix) x n_j
+    prefix = np.cumsum(inc, axis=0) - inc
+    prefix -= (np.cumsum(inc, axis=0) - inc)[starts[gid]]
+    np.add.at(cross, gid, 0.5 * np.cross(prefix, inc))
+    return counts, sums, weighted, cross
+
+
+def build_slews(
+    pieces: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
+    period_s: float,
+    window_start_s: np.ndarray,
+    window_end_s: np.ndarray,
+    dropped: Mapping[str, int] | None = None,
+    groups: int = DEFAULT_GROUPS,
+) -> Slews:
+    """:class:`Slews` from ``(first, second, reference (3,), gyro samples (n, 3))`` per slew.
+
+    ``window_start_s`` / ``window_end_s`` are the (M,) times of all windows.
+    """
+    out = [group_increments(g, period_s, ref, groups) for _, _, ref, g in pieces]
+    first = np.array([p[0] for p in pieces], dtype=np.int64)
+    second = np.array([p[1] for p in pieces], dtype=np.int64)
+    rows = np.stack([first, second], axis=1)
+
+    def stack(i: int, shape: tuple[int, ...]) -> np.ndarray:
+        return np.array([o[i] for o in out], dtype=float).reshape((len(pieces),) + shape)
+
+    return Slews(
+        first=first,
+        second=second,
+        period_s=float(period_s),
+        samples=np.array([p[3].shape[0] for p in pieces], dtype=np.int64),
+        reference=np.array([p[2] for p in pieces], dtype=float).reshape(-1, 3),
+        group_samples=stack(0, (groups,)).astype(np.int64),
+        sums=stack(1, (groups, 3)),
+        weighted=stack(2, (groups, 3)),
+        cross=stack(3, (groups, 3)),
+        window_start_s=np.asarray(window_start_s, float)[rows].reshape(-1, 2),
+        window_end_s=np.asarray(window_end_s, float)[rows].reshape(-1, 2),
+        dropped={**dict.fromkeys(DROP_REASONS, 0), **(dropped or {})},
+    )
+
+
+class SlewCollector:
+    """Streaming collection of the slews between consecutive static windows.
+
+    Give it the windows (``recal.static.Window``: start_index, end_index and mean gyro output),
+    then feed the recording's frames again in order (the keyword arguments of
+    ``StaticDetector.feed``). Only the frames of the slew being collected are held. A slew with
+    a lost frame (``lost_before``), an invalid frame or a gyro sample at ``gyro_limits`` (the
+    output's saturation values, when known) is dropped and counted.
+    """
+
+    def __init__(
+        self,
+        windows: Sequence,
+        period_s: float,
+        gyro_limits: tuple[float, float] | None = None,
+        groups: int = DEFAULT_GROUPS,
+    ) -> None:
+        self._windows = list(windows)
+        self._period = float(period_s)
+        self._limits = gyro_limits
+        self._groups = groups
+        # slew j: frames end_index[j] + 1 ... start_index[j + 1] (the first frame of window j+1)
+        self._lo = np.array([w.end_index + 1 for w in self._windows[:-1]], dtype=np.int64)
+        self._hi = np.array([w.start_index + 1 for w in self._windows[1:]], dtype=np.int64)
+        self._parts: list[list[np.ndarray]] = [[] for _ in self._lo]
+        self._bad: list[str | None] = [None] * len(self._lo)
+        self._index = 0  # global index of the next frame fed
+
+    def feed(self, time_s, gyro, accel=None, temperature_c=None, valid=None, lost_before=None):
+        g = np.asarray(gyro, dtype=np.float64)
+        n = g.shape[0]
+        a, b = self._index, self._index + n
+        self._index = b
+        # the slews this piece touches (a loop over slews, not samples)
+        for j in np.flatnonzero((self._lo < b) & (self._hi > a)):
+            lo, hi = max(self._lo[j], a) - a, min(self._hi[j], b) - a
+            if self._bad[j] is not None:
+                continue
+            part = g[lo:hi]
+            if lost_before is not None and np.any(np.asarray(lost_before)[lo:hi] > 0):
+                self._bad[j] = "lost_frames"
+            elif not np.isfinite(part).all() or (
+                valid is not None and not np.asarray(valid)[lo:hi].astype(bool).all()
+            ):
+                self._bad[j] = "invalid_frames"
+            elif self._limits is not None and (
+                np.any(part <= self._limits[0]) or np.any(part >= self._limits[1])
+            ):
+                self._bad[j] = "saturated"
+            else:
+                self._parts[j].append(part.copy())
+                continue
+            self._parts[j] = []
+
+    def result(self) -> Slews:
+        dropped = dict.fromkeys(DROP_REASONS, 0)
+        pieces = []
+        for j, bad in enumerate(self._bad):
+            if bad is not None:
+                dropped[bad] += 1
+                continue
+            samples = np.concatenate(self._parts[j]) if self._parts[j] else np.zeros((0, 3))
+            if samples.shape[0] != self._hi[j] - self._lo[j]:
+                dropped["lost_frames"] += 1  # the recording ended early
+                continue
+            pieces.append((j, j + 1, np.asarray(self._windows[j].gyro, float), samples))
+        start = np.array([w.start_s for w in self._windows], dtype=float)
+        end = np.array([w.end_s for w in self._windows], dtype=float)
+        return build_slews(pieces, self._period, start, end, dropped, self._groups)
+
+
+# ---- integration, batched over parameter vectors ----------------------------------------------
+def cofactor3(M: np.ndarray) -> np.ndarray:
+    """Cofactor matrices det(M) M^-T of a batch (..., 3, 3): (M a) x (M b) = cof(M) (a x b)."""
+    c = np.empty_like(M)
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            c[..., i, j] = M[..., i1, j1] * M[..., i2, j2] - M[..., i1, j2] * M[..., i2, j1]
+    return c
+
+
+def quat_from_rotvec(phi: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), rad -> unit quaternions (..., 4) [w, x, y, z]."""
+    angle = np.sqrt(np.einsum("...i,...i->...", phi, phi))
+    half = 0.5 * angle
+    # sin(a/2)/a, with its series near 0
+    small = angle < 1e-6
+    k = np.where(small, 0.5 - angle**2 / 48, np.sin(half) / np.where(small, 1.0, angle))
+    return np.concatenate([np.cos(half)[..., None], phi * k[..., None]], axis=-1)
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p q of quaternion arrays (..., 4)."""
+    pw, pv = p[..., :1], p[..., 1:]
+    qw, qv = q[..., :1], q[..., 1:]
+    w = pw * qw - np.sum(pv * qv, axis=-1, keepdims=True)
+    v = pw * qv + qw * pv + np.cross(pv, qv)
+    return np.concatenate([w, v], axis=-1)
+
+
+def rotate_back(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """C(q)^T v for quaternions (..., 4) and vectors (..., 3): a vector of the start frame in the
+    end frame, when C(q) maps end-frame coordinates to start-frame ones."""
+    w, u = q[..., :1], q[..., 1:]
+    t = np.cross(u, v)
+    return v - 2.0 * w * t + 2.0 * np.cross(u, t)
+
+
+def rodrigues(phi: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """exp([phi]x) v for rotation vectors and vectors (..., 3)."""
+    return rotate_back(quat_from_rotvec(-phi), v)
+
+
+def _chain_components(w, x, y, z):
+    """Ordered Hamilton product over the last axis of quaternion components (..., G): pairwise,
+    log2(G) vectorised steps. Returns the four components (...,)."""
+    while w.shape[-1] > 1:
+        if w.shape[-1] % 2:
+            pad = [(0, 0)] * (w.ndim - 1) + [(0, 1)]
+            w = np.pad(w, pad, constant_values=1.0)
+            x, y, z = (np.pad(a, pad) for a in (x, y, z))
+        aw, ax, ay, az = w[..., 0::2], x[..., 0::2], y[..., 0::2], z[..., 0::2]
+        bw, bx, by, bz = w[..., 1::2], x[..., 1::2], y[..., 1::2], z[..., 1::2]
+        w, x, y, z = (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        )
+    return w[..., 0], x[..., 0], y[..., 0], z[..., 0]
+
+
+def slew_rotations(
+    slews: Slews, gain: np.ndarray, A: np.ndarray, offset: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Integrated rotation and rest rate per parameter vector and slew.
+
+    The gyro model N = gain * (A w + offset) (w in deg/h) with gain and offset of shape (P, 1, 3)
+    or (P, S, 3) (per slew: the context of its first window) and A (P, 3, 3). Returns the
+    quaternions (P, S, 4) of the rotation from the body frame at the end of window ``first`` to
+    the one at the start of window ``second`` (C(q) maps the latter's coordinates to the
+    former's), and the calibrated rest rate of window ``first`` (P, S, 3) in rad/s.
+    Component-major inside: three (P x S) batches of 3x3 by 3xG matrix products, then
+    elementwise work on (P, S, G) arrays.
+    """
+    P, S = A.shape[0], len(slews)
+    Ainv = inv3(A)[:, None]  # (P, 1, 3, 3)
+    Mm = DEG_H_TO_RAD_S * Ainv / gain[:, :, None, :]  # (P, S|1, 3, 3): column j / gain_j
+    rest = (Ainv @ (slews.reference[None] / gain - offset)[..., None])[..., 0]
+    rest = DEG_H_TO_RAD_S * np.broadcast_to(rest, (P, S, 3))  # (P, S, 3) rad/s
+    c = (rest * slews.period_s)[..., None]  # per-sample rest increment, rad, (P, S, 3, 1)
+    Mb = np.broadcast_to(Mm, (P, S, 3, 3))
+    phi = Mb @ slews.sums.transpose(0, 2, 1)  # (P, S, 3, G)
+    phi += slews.group_samples[None, :, None, :] * c
+    mw = Mb @ slews.weighted.transpose(0, 2, 1)
+    phi[:, :, 0] += 0.5 * (mw[:, :, 1] * c[:, :, 2] - mw[:, :, 2] * c[:, :, 1])
+    phi[:, :, 1] += 0.5 * (mw[:, :, 2] * c[:, :, 0] - mw[:, :, 0] * c[:, :, 2])
+    phi[:, :, 2] += 0.5 * (mw[:, :, 0] * c[:, :, 1] - mw[:, :, 1] * c[:, :, 0])
+    phi += cofactor3(Mb) @ slews.cross.transpose(0, 2, 1)
+    angle = np.sqrt(np.einsum("psig,psig->psg", phi, phi))
+    small = angle < 1e-6
+    k = np.where(small, 0.5 - angle**2 / 48, np.sin(0.5 * angle) / np.where(small, 1.0, angle))
+    w, x, y, z = _chain_components(np.cos(0.5 * angle), *(phi[:, :, i] * k for i in range(3)))
+    return np.stack([w, x, y, z], axis=-1), rest
+
+
+def horizontal_basis(up: np.ndarray) -> np.ndarray:
+    """(S, 2, 3) two unit vectors orthogonal to each direction ``up`` (S, 3) and to each other."""
+    u = up / np.linalg.norm(up, axis=1, keepdims=True)
+    helper = np.eye(3)[np.argmin(np.abs(u), axis=1)]
+    e1 = np.cross(u, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return np.stack([e1, np.cross(u, e1)], axis=1)
+
+
+def slew_residuals(
+    slews: Slews,
+    gain: np.ndarray,
+    A: np.ndarray,
+    offset: np.ndarray,
+    f_first: np.ndarray,
+    f_second: np.ndarray,
+    basis: np.ndarray,
+    earth_rate: bool,
+) -> np.ndarray:
+    """Slew residuals (P, 2 S), rad: the gravity direction the integrated gyro predicts at
+    window ``second`` against the measured one, ``u_meas x u_pred`` on ``basis`` (S, 2, 3).
+
+    f_first / f_second: (P, S, 3) calibrated specific force of the two windows. With
+    ``earth_rate`` the Earth's rotation over the slew is taken out, with the calibrated rest rate
+    of window ``first`` as the Earth rate in its body frame (a gyro that sees Earth rate):
+    u_(k+1) = C^T exp([w_k T]x) u_k. Without it, that rotation (Omega cos(lat) T, about north)
+    is left in the noise budget (:func:`slew_sigma`).
+    Evaluated in batches over P so the temporaries stay bounded.
+    """
+    P, S = A.shape[0], len(slews)
+    out = np.empty((P, S, 2))
+    step = max(1, _BATCH_ELEMENTS // max(S * slews.sums.shape[1], 1))
+    for a in range(0, P, step):  # a loop over batches of parameter vectors, not samples
+        b = min(a + step, P)
+        q, rest = slew_rotations(slews, gain[a:b], A[a:b], offset[a:b])
+        u1 = f_first[a:b] / np.linalg.norm(f_first[a:b], axis=-1, keepdims=True)
+        if earth_rate:
+            u1 = rodrigues(rest * slews.duration_s[None, :, None], u1)
+        pred = rotate_back(q, u1)
+        u2 = f_second[a:b] / np.linalg.norm(f_second[a:b], axis=-1, keepdims=True)
+        err = np.cross(u2, pred)
+        out[a:b] = np.einsum("psi,sji->psj", err, basis)
+    return out.reshape(P, 2 * S)
+
+
+def slew_sigma(
+    slews: Slews,
+    gyro_std_in: np.ndarray | None,
+    gyro_sem_in: np.ndarray | None,
+    accel_sem_in: np.ndarray | None,
+    f_first: np.ndarray,
+    f_second: np.ndarray,
+    basis: np.ndarray,
+    earth_rate: bool,
+    latitude_deg: float,
+) -> np.ndarray | None:
+    """1-sigma (2 S,) of the slew residuals, rad, from the windows' noise; None without it.
+
+    * gyro angle random walk: the per-sample gyro std (deg/h, mean of the two windows and of the
+      axes) integrated over the slew's n samples: (u sigma dt)^2 n;
+    * the two gravity directions: window-mean accel noise / |f|, window ``second`` projected on
+      the residual basis, window ``first`` (seen through the rotation) its mean over axes;
+    * Earth rate: with ``earth_rate`` the noise of the rest rate used for it, (u sem T)^2; without,
+      the rotation left in, Omega cos(lat) T about an unknown north: (Omega cos(lat) T)^2 / 2
+      per component.
+
+    gyro_std_in, gyro_sem_in, accel_sem_in: (M, 3) per window in input units.
+    """
+    if gyro_std_in is None or accel_sem_in is None:
+        return None
+    i, j = slews.first, slews.second
+    dt, n, T = slews.period_s, slews.samples, slews.duration_s
+    s_rate = 0.5 * (np.mean(gyro_std_in[i] ** 2, axis=1) + np.mean(gyro_std_in[j] ** 2, axis=1))
+    var = (DEG_H_TO_RAD_S * dt) ** 2 * s_rate * n
+    g1 = np.linalg.norm(f_first, axis=1)
+    g2 = np.linalg.norm(f_second, axis=1)
+    var = var + np.mean(accel_sem_in[i] ** 2, axis=1) / g1**2
+    var2 = var[:, None] + np.einsum("sji,si->sj", basis**2, accel_sem_in[j] ** 2) / g2[:, None] ** 2
+    if earth_rate:
+        if gyro_sem_in is not None:
+            var2 += ((DEG_H_TO_RAD_S * T) ** 2 * np.mean(gyro_sem_in[i] ** 2, axis=1))[:, None]
+    else:
+        horizontal = OMEGA_IE_RAD_S * math.cos(math.radians(latitude_deg)) * T
+        var2 += (horizontal**2 / 2.0)[:, None]
+    return np.sqrt(var2).reshape(-1)
+
+
+def integrate_samples(rates_rad_s: np.ndarray, period_s: float) -> np.ndarray:
+    """Reference integration of one slew at the full rate, for tests and checks: rates (n, 3) in
+    rad/s, each sample held for one period, composed sample by sample (a sequential loop: slow,
+    never on a hot path). Returns the quaternion (4,) of C(start <- end)."""
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for r in quat_from_rotvec(np.asarray(rates_rad_s, float) * period_s):
+        q = quat_multiply(q, r)
+    return q
