@@ -190,6 +190,7 @@ def main() -> int:
 
     failures: list[str] = [] if clean_exit else ["reference run did not exit 0"]
     kinds = {"daemon -9": 0, "worker -9": 0, "group TERM": 0}
+    reported = len(failures)
     for run in range(1, args.runs + 1):
         proc = _start(config)
         try:
@@ -236,19 +237,20 @@ def main() -> int:
                 os.kill(p, signal.SIGKILL)
         failures += [f"run {run}: {f}" for f in _check_db(db)]
         for s_id, got in _windows(db).items():
-            n = len(got)
-            if n > len(reference) or not np.allclose(got, reference[:n], rtol=0, atol=1e-9):
+            if not _is_prefix(got, reference):
                 failures.append(
-                    f"run {run}: session {s_id} windows are not a prefix of the clean run's"
+                    f"run {run}: session {s_id} windows are not a prefix of the clean run's "
+                    f"(starts {np.round(got[:, 0], 2).tolist()})"
                 )
+        for f in failures[reported:]:
+            print("  FAIL", f, flush=True)
+        reported = len(failures)
         print(f"run {run:3d}: {kind:10s} windows so far {sum(map(len, _windows(db).values())):5d}"
               f"  versions {_current(db)}  failures {len(failures)}", flush=True)  # fmt: skip
     print(
         f"\n{args.runs} runs ({', '.join(f'{k}: {v}' for k, v in kinds.items())}): "
         f"{len(failures)} failures"
     )
-    for f in failures:
-        print("  FAIL", f)
     return 1 if failures else 0
 
 
