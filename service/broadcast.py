@@ -95,7 +95,7 @@ class Broadcast:
 
     def _start(self) -> None:
         if self._pump is None:  # the first stream subscribes (the lock is held)
-            subscription = self._publisher.subscribe()
+            subscription = self._publisher.subscribe(current=False)  # open() sends the latest
             self._pump = threading.Thread(
                 target=self._run, args=(subscription,), name="sse-broadcast", daemon=True
             )
