@@ -442,6 +442,25 @@ def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
     return theta
 
 
+def _slew_gyro_models(
+    models: tuple[Model, ...], layout: ParameterLayout, theta: np.ndarray
+) -> tuple[Model, ...]:
+    """The models with the gyro bias's typical change set for a gyro calibrated from slews:
+    max(10 x Earth rate, the scale's typical relative change x |b|). The second term because
+    such a gyro's zero-rate output is large against Earth rate: a scale change of 1000 ppm moves
+    the input-referred bias b by 1000 ppm of it, and the two must be judged on one footing."""
+    sl = layout.term_slices()
+    scale = next(t for m in models for t in m.terms if t.name == "gyro.scale")
+    rel = np.asarray(scale.typical, float)
+    typ = np.maximum(SLEW_GYRO_BIAS_TYPICAL_DPH, rel * np.abs(theta[sl["gyro.bias"]]))
+    return tuple(
+        Model(m.sensor, tuple(
+            replace(t, typical=tuple(float(v) for v in typ)) if t.name == "gyro.bias" else t
+            for t in m.terms))
+        for m in models
+    )  # fmt: skip
+
+
 def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
     """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes."""
     sensors = _resolve_sensors(positions, opt.sensor)
@@ -460,7 +479,8 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
         notes.append(
             f"gyro calibrated from {len(slews)} slews (scale and misalignment; bias from the "
             f"still windows): Earth rate is not visible ({problem_gyro.split(': Earth')[0]}), "
-            f"so its bias's typical change is taken as {SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h"
+            f"so its bias's typical change is taken as the larger of "
+            f"{SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h and 1000 ppm of the bias"
         )
     elif problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
         sensors = ("accel",)  # the default calibrates what the data can show
@@ -471,13 +491,6 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
         notes.append("slews not used: they need both triads calibrated together")
         slews = None
     models = build_models(sensors, opt.effects, opt.plugin_terms, opt.t0_c)
-    if from_slews:
-        models = tuple(
-            Model(m.sensor, tuple(
-                replace(t, typical=(SLEW_GYRO_BIAS_TYPICAL_DPH,) * 3) if t.name == "gyro.bias"
-                else t for t in m.terms))
-            for m in models
-        )  # fmt: skip
     layout = ParameterLayout(models)
     if opt.prior is not None:
         theta_data = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
@@ -489,6 +502,10 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
         prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
 
     def build(theta: np.ndarray) -> Problem:
+        if from_slews:  # the bias's typical change for a gyro blind to Earth rate
+            nonlocal models, layout
+            models = _slew_gyro_models(models, layout, theta)
+            layout = ParameterLayout(models)
         return Problem.build(
             positions, models, opt.latitude_deg, opt.height_m, theta,
             slews=slews, slew_earth_rate=not from_slews,

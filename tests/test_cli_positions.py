@@ -33,6 +33,7 @@ def xsens_csv(shared_data, tmp_path, capsys):
         "xsens-text",
         "--init-still",
         "50",
+        "--no-slews",  # the positions alone; with slews: tests/test_cli_slews.py
         "-o",
         out,
     )

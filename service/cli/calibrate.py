@@ -65,6 +65,14 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--polish", action="store_true", help="follow a swarm by LM")
     p.add_argument("--fish", type=int, default=50, help="swarm size (default 50)")
     p.add_argument("--iterations", type=int, default=60, help="iterations per phase (default 60)")
+    p.add_argument(
+        "--slews",
+        dest="slews",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="use the slews kept by `recal positions` in POSITIONS.slews.npz (default: when "
+        "that file exists); --slews without it is an error",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
@@ -94,6 +102,7 @@ def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
         extra = {"cf_mode": "literal"} if args.paper and args.method == "nafsa" else {}
         swarm = cfg_cls(fish=args.fish, iterations=args.iterations, **extra)
     return CalibrationOptions(
+        slews=load_slews(args),
         sensor=args.sensor,
         method=args.method,
         mc_runs=args.mc,
@@ -107,6 +116,31 @@ def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
         polish=args.polish,
         swarm_config=swarm,
     )
+
+
+def load_slews(args: argparse.Namespace):
+    """The slews side file of the positions (recal.slews.Slews), or None (--no-slews, absent)."""
+    from pathlib import Path
+
+    from recal.errors import RecalInputError
+    from recal.slews import Slews
+    from service.cli.positions import slews_path
+
+    use = getattr(args, "slews", None)
+    if use is False:
+        return None
+    path = slews_path(args.positions)
+    if not path.is_file():
+        if use:
+            raise RecalInputError(f"--slews: no slews file {path} (made by `recal positions`)")
+        return None
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise RecalInputError(f"cannot read {path}: {exc.strerror or exc}") from None
+    slews = Slews.from_npz_bytes(data, str(path))
+    print(f"recal: using {len(slews)} slews from {path}", file=sys.stderr)
+    return slews
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

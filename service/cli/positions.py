@@ -7,6 +7,11 @@ xsens-text``: the acc file and the gyro file, raw counts) or a CSV log (``--form
 conventions section 9, output units). The detector is ``recal.static``; the CSV columns are
 conventions section 4 plus ``frames_lost`` and ``frames_invalid``.
 
+Beside the CSV, a third pass keeps the gyro samples of each slew (the motion between two
+consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal.slews), which
+``recal calibrate`` uses for the slew invariant. A slew with lost or invalid frames or a
+saturated gyro sample is dropped and counted; its windows stay in the CSV.
+
 Only argparse is imported to build the parser; numpy, recal and drivers are imported by run().
 """
 
@@ -60,6 +65,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "accel_x=acc_x,accel_y=acc_y,accel_z=acc_z,time_s=t",
     )
     p.add_argument("-o", "--output", required=True, metavar="POSITIONS.csv")
+    p.add_argument(
+        "--no-slews",
+        dest="slews",
+        action="store_false",
+        help="do not keep the slews (the gyro samples between windows) in POSITIONS.slews.npz",
+    )
     k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
     k.add_argument(
         "--gyro-output",
@@ -166,7 +177,41 @@ def run(args: argparse.Namespace) -> int:
         f"{max(durations):.1f} s long) to {out}",
         file=sys.stderr,
     )
+    side = slews_path(out)
+    if getattr(args, "slews", True) and len(windows) > 1 and recording.triads == ("gyro", "accel"):
+        _write_slews(side, recording, windows, report.sample_rate_hz)
+    elif side.exists():
+        side.unlink()  # a stale side file would not match the new windows
     return 0
+
+
+def slews_path(positions: Path | str) -> Path:
+    """The slews side file of a positions CSV: ``x.csv`` -> ``x.slews.npz``."""
+    p = Path(positions)
+    return p.with_name(p.stem + ".slews.npz") if p.suffix else p.with_name(p.name + ".slews.npz")
+
+
+def _write_slews(path: Path, recording, windows, rate_hz: float | None) -> None:
+    """Pass 3: the gyro samples between consecutive windows, as recal.slews increments."""
+    from recal.slews import SlewCollector
+    from service.cli.common import atomic_write
+
+    if not rate_hz:
+        return
+    collector = SlewCollector(windows, 1.0 / rate_hz, recording.gyro_limits)
+    with _ByteProgress(recording.total_bytes, "slews") as bar:
+        for frames in recording.frames(bar.update):
+            collector.feed(**frames)
+    slews = collector.result()
+    data = slews.to_npz_bytes()
+    atomic_write(path, data)
+    dropped = ", ".join(f"{k} {v}" for k, v in slews.dropped.items() if v)
+    print(
+        f"recal positions: kept {len(slews)} slews ({slews.sums.shape[1]} increments each) in "
+        f"{path} ({len(data) / 1024:.0f} kB); dropped {slews.n_dropped}"
+        + (f" ({dropped}): they cannot be integrated" if dropped else ""),
+        file=sys.stderr,
+    )
 
 
 def _has_thresholds(args: argparse.Namespace) -> bool:

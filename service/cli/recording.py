@@ -40,6 +40,9 @@ class Recording:
     triads: tuple[str, ...] = ("gyro", "accel")
     #: Sample rate for the detector (None: derived from the time column).
     sample_rate_hz: float | None = None
+    #: Gyro output values at which the gyro saturates (low, high), when the format tells; a slew
+    #: with a sample there cannot be integrated (recal.slews.SlewCollector).
+    gyro_limits: tuple[float, float] | None = None
 
     def __init__(self, paths: list[str]) -> None:
         self.paths = paths
@@ -127,6 +130,8 @@ def _kvh_frames(batch: Any) -> Frames:
 # ---- Xsens text pair ------------------------------------------------------------------------
 class XsensRecording(Recording):
     """An Xsens acc file and gyro file (raw counts), read in step."""
+
+    gyro_limits = (0.0, 65535.0)  # unsigned 16-bit counts
 
     def __init__(self, inputs: list[str], rate: float | None) -> None:
         if len(inputs) != 2:

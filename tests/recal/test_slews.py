@@ -1,0 +1,217 @@
+"""recal.slews: integration of downsampled increments, the simulator's slews, the joint fit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from recal.calibrate import CalibrationOptions, build_models, calibrate
+from recal.coefficients import CoefficientSet
+from recal.model import ParameterLayout
+from recal.observability import COMMON_ROTATION_REASON
+from recal.problem import Problem
+from recal.reference import OMEGA_IE_RAD_S
+from recal.session import session_positions, session_slews, simulate_session
+from recal.simulate import NoiseSpec
+from recal.slews import (
+    DEG_H_TO_RAD_S,
+    SlewCollector,
+    Slews,
+    build_slews,
+    integrate_samples,
+    slew_rotations,
+)
+from recal.terms import MISALIGNMENT_INDEX
+
+QUIET = NoiseSpec(arw_deg_rt_h=0.0, vrw_ug_rt_hz=0.0)
+
+
+def _coning_slew(groups: int):
+    """A 7 s slew about a wandering axis (coning), through a gyro with scale, bias and E."""
+    dt, t = 0.01, np.arange(700) * 0.01
+    w = np.column_stack([1.5 * np.sin(2 * t), 0.8 * np.cos(3 * t), 0.5 + 0.3 * np.sin(5 * t)])
+    K, b = np.array([100.0, 120.0, 90.0]), np.array([3.0, -2.0, 1.0])
+    A = np.eye(3) + np.array([[0, 1e-3, 2e-3], [-1e-3, 0, 3e-3], [5e-4, -2e-3, 0]])
+    N = K * (w / DEG_H_TO_RAD_S @ A.T + b)
+    ref = N[0] + 5.0
+    slews = build_slews(
+        [(0, 1, ref, N)], dt, np.array([0.0, 10]), np.array([1.0, 11]), groups=groups
+    )
+    q, rest = slew_rotations(slews, K[None, None], A[None], b[None, None])
+    exact = integrate_samples(w, dt)
+    err = 2 * min(np.linalg.norm(q[0, 0] - exact), np.linalg.norm(q[0, 0] + exact))
+    return err, rest[0, 0], np.linalg.solve(A, ref / K - b) * DEG_H_TO_RAD_S
+
+
+def test_downsampled_increments_keep_the_coning_correction():
+    """64 increments reproduce the sample-by-sample rotation of a coning slew (2.8 rad) to
+    2e-5 rad; the error falls as G^-4 (second-order composition inside each group is exact)."""
+    errs = {g: _coning_slew(g)[0] for g in (16, 64, 256)}
+    assert errs[64] < 2e-5 and errs[256] < 1e-7 and errs[16] > 100 * errs[64]
+    _, rest, expected = _coning_slew(64)
+    assert np.allclose(rest, expected, rtol=1e-12)  # the calibrated rest rate of window k
+
+
+@pytest.fixture(scope="module")
+def quiet_problem():
+    truth = CoefficientSet.seed_truth()
+    s = simulate_session(truth, "24", latitude_deg=45.0, seed=3, rate_hz=200, window_s=6,
+                         slew_s=5, noise=QUIET)  # fmt: skip
+    models = build_models(("gyro", "accel"), (), (), 25.0)
+    theta = truth.to_vector(ParameterLayout(models))
+    return s, models, theta
+
+
+@pytest.mark.parametrize("earth", [True, False])
+def test_simulated_slews_are_physically_consistent(quiet_problem, earth):
+    """Noise-free session at the truth: with Earth's rotation taken out the slew residual is the
+    integration error only (< 2e-6 rad at 200 Hz); left in, it is Omega cos(lat) T."""
+    s, models, theta = quiet_problem
+    slews = session_slews(s)
+    p = Problem.build(session_positions(s), models, 45.0, 0.0, theta, slews=slews,
+                      slew_earth_rate=earth)  # fmt: skip
+    r = np.abs(p.raw_residuals(theta[None])["slew"][0])
+    T = float(slews.duration_s[0])
+    if earth:
+        assert r.max() < 2e-6
+    else:
+        earth_turn = OMEGA_IE_RAD_S * math.cos(math.radians(45.0)) * T
+        assert 0.3 * earth_turn < r.max() < 1.01 * earth_turn
+
+
+def test_side_file_round_trip_and_mismatch(quiet_problem):
+    s, _, _ = quiet_problem
+    slews = session_slews(s)
+    back = Slews.from_npz_bytes(slews.to_npz_bytes())
+    for name in ("first", "second", "samples", "sums", "weighted", "cross", "reference"):
+        assert np.array_equal(getattr(back, name), getattr(slews, name))
+    pos = session_positions(s)
+    assert back.mismatch(pos.columns["start_s"], pos.columns["end_s"]) is None
+    assert back.mismatch(pos.columns["start_s"] + 1.0, pos.columns["end_s"]) is not None
+
+
+def test_collector_drops_and_counts_a_slew_with_a_lost_frame(quiet_problem):
+    """A lost frame, an invalid frame or a saturated sample in a slew: that slew is dropped and
+    counted; the others are kept identical to those of the whole recording."""
+    s, _, _ = quiet_problem
+
+    class W:  # the Window fields the collector reads
+        def __init__(self, k):
+            self.start_index, self.end_index = int(s.hold_first[k]), int(s.hold_last[k])
+            self.start_s, self.end_s = s.hold_start_s[k], s.hold_end_s[k]
+            self.gyro = s.gyro_out[self.start_index : self.end_index + 1].mean(axis=0)
+
+    windows = [W(k) for k in range(s.n_holds)]
+    n = len(s)
+    lost = np.zeros(n, dtype=np.int64)
+    valid = np.ones(n, dtype=bool)
+    lost[int(s.hold_last[2]) + 100] = 3  # in slew 2
+    valid[int(s.hold_last[5]) + 10] = False  # in slew 5
+    col = SlewCollector(windows, 1 / s.rate_hz)
+    for a in range(0, n, 7001):  # chunked like a stream
+        sl = slice(a, a + 7001)
+        col.feed(s.time_s[sl], s.gyro_out[sl], valid=valid[sl], lost_before=lost[sl])
+    got = col.result()
+    assert got.dropped == {"lost_frames": 1, "invalid_frames": 1, "saturated": 0}
+    assert len(got) == s.n_holds - 3 and 2 not in got.first and 5 not in got.first
+    whole = session_slews(s)
+    keep = np.isin(whole.first, got.first)
+    assert np.allclose(got.sums, whole.sums[keep], rtol=1e-12, atol=1e-12)
+    limits = SlewCollector(windows, 1 / s.rate_hz, gyro_limits=(-1e12, 1e3))
+    limits.feed(s.time_s, s.gyro_out)
+    assert limits.result().dropped["saturated"] == s.n_holds - 1  # every slew turns past 1e3
+
+
+def _skew(v):
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def accel_frame_truth(theta: np.ndarray, layout: ParameterLayout) -> np.ndarray:
+    """The truth with both triads' frames turned together until the accelerometer's
+    antisymmetric misalignment is zero: the gauge the slew fit reports (accel frame = reference,
+    held at the zero prior). Exact, with the diagonal returned to the scale and bias."""
+    th, sl = np.array(theta, float), layout.term_slices()
+    rows, cols = zip(*MISALIGNMENT_INDEX, strict=True)
+    A = {}
+    for s in ("gyro", "accel"):
+        E = np.zeros((3, 3))
+        E[rows, cols] = th[sl[f"{s}.misalignment"]]
+        A[s] = np.eye(3) + E
+    Rc = np.eye(3)
+    for _ in range(8):
+        Aa = A["accel"] @ Rc
+        Ea = Aa / np.diag(Aa)[:, None]
+        W = 0.5 * (Ea - Ea.T)
+        Rc = Rc @ expm(-_skew([W[2, 1], W[0, 2], W[1, 0]]))
+    for s in ("gyro", "accel"):
+        Ap = A[s] @ Rc
+        d = np.diag(Ap)
+        th[sl[f"{s}.misalignment"]] = (Ap / d[:, None])[rows, cols]
+        th[sl[f"{s}.scale"]] *= d
+        th[sl[f"{s}.bias"]] /= d
+    return th
+
+
+def _fit(seed: int, slews: bool, noise: NoiseSpec | None = None, truth=None):
+    truth = truth or CoefficientSet.seed_truth()
+    s = simulate_session(truth, "24", latitude_deg=45.0, seed=seed, rate_hz=200, window_s=20,
+                         slew_s=5, noise=noise)  # fmt: skip
+    opt = CalibrationOptions(latitude_deg=45.0, slews=session_slews(s) if slews else None)
+    r = calibrate(session_positions(s), opt)
+    tv = truth.to_vector(r.layout)
+    if slews:
+        tv = accel_frame_truth(tv, r.layout)
+    sd = np.concatenate([r.uncertainty[n] for n in r.layout.term_slices()])
+    status = np.concatenate([r.status[n] for n in r.layout.term_slices()])
+    return r, r.theta - tv, sd, status
+
+
+def test_slews_estimate_all_twelve_gyro_coefficients_within_three_sigma():
+    """20 seeds: with slews none of the 12 gyro coefficients is held, every error (gyro and
+    accel, in the accelerometer-frame gauge) is within 3 sigma, and the antisymmetric gyro
+    misalignment errors shrink against the fit without slews."""
+    anti_with, anti_without, worst = [], [], 0.0
+    for seed in range(20):
+        r, err, sd, status = _fit(seed, slews=True)
+        gyro = np.array([n.startswith("gyro.") for n in r.layout.names])
+        assert (status[gyro] == "estimated").all()
+        assert np.all(r.observability.share[gyro] > 0.99)
+        est = status == "estimated"
+        worst = max(worst, float(np.max(np.abs(err[est] / sd[est]))))
+        names = r.layout.names
+        ix = {n.rsplit(".", 1)[1]: i for i, n in enumerate(names) if "gyro.misalignment" in n}
+        anti = [
+            err[ix[a]] - err[ix[b]] for a, b in (("Exz", "Eyz"), ("Exy", "Ezy"), ("Eyx", "Ezx"))
+        ]
+        anti_with.append(anti)
+        if seed < 5:
+            r0, err0, _, _ = _fit(seed, slews=False)
+            anti_without.append([err0[ix[a]] - err0[ix[b]] for a, b in (("Exz", "Eyz"),
+                                 ("Exy", "Ezy"), ("Eyx", "Ezx"))])  # fmt: skip
+        reasons = set(r.observability.held_reasons)
+        assert reasons == {COMMON_ROTATION_REASON}
+    assert worst < 3.0 * 1.3  # 27 x 20 normal z-scores: the largest is ~3.5 by chance
+    rms_with = float(np.sqrt(np.mean(np.square(anti_with))))
+    rms_without = float(np.sqrt(np.mean(np.square(anti_without))))
+    assert rms_with < rms_without / 10
+
+
+def test_a_gyro_blind_to_earth_rate_is_calibrated_from_the_slews():
+    """A MEMS-like gyro (noise 1 deg/sqrt(h): window means 30x noisier than a FOG's) cannot see
+    Earth rate; with slews its scale and misalignment are estimated anyway, within 3 sigma."""
+    noisy = NoiseSpec(arw_deg_rt_h=1.0, vrw_ug_rt_hz=50.0)
+    r, err, sd, status = _fit(1, slews=True, noise=noisy)
+    assert r.problem.sensors == ("gyro", "accel") and not r.problem.slew_earth_rate
+    assert any("calibrated from 23 slews" in n for n in r.notes)
+    gyro = np.array([n.startswith("gyro.") for n in r.layout.names])
+    assert (status[gyro] == "estimated").all()
+    scale = [i for i, n in enumerate(r.layout.names) if n.startswith("gyro.scale")]
+    assert np.all(sd[scale] / r.theta[scale] < 2e-3)
+    assert np.all(np.abs(err[gyro] / sd[gyro]) < 3.5)
+    r0 = calibrate(session_positions(simulate_session(CoefficientSet.seed_truth(), "24",
+                   latitude_deg=45.0, seed=1, rate_hz=200, window_s=20, slew_s=5, noise=noisy)),
+                   CalibrationOptions(latitude_deg=45.0))  # fmt: skip
+    assert r0.problem.sensors == ("accel",)  # without slews it is skipped, as before
