@@ -65,14 +65,6 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--polish", action="store_true", help="follow a swarm by LM")
     p.add_argument("--fish", type=int, default=50, help="swarm size (default 50)")
     p.add_argument("--iterations", type=int, default=60, help="iterations per phase (default 60)")
-    p.add_argument(
-        "--slews",
-        dest="slews",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="use the slews kept by `recal positions` in POSITIONS.slews.npz (default: when "
-        "that file exists); --slews without it is an error",
-    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
@@ -126,7 +118,9 @@ def load_slews(args: argparse.Namespace):
     from recal.slews import Slews
     from service.cli.positions import slews_path
 
-    use = getattr(args, "slews", None)
+    if not hasattr(args, "slews"):  # diagnose: not yet (its report has no slew invariant)
+        return None
+    use = args.slews
     if use is False:
         return None
     path = slews_path(args.positions)
@@ -151,6 +145,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "Coefficients the positions cannot show are held at the prior and reported as 'held'.",
     )
     add_calibration_arguments(p)
+    p.add_argument(
+        "--slews",
+        dest="slews",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="use the slews kept by `recal positions` in POSITIONS.slews.npz (default: when "
+        "that file exists); --slews without it is an error",
+    )
     p.add_argument(
         "-o",
         "--output",
