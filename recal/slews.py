@@ -47,7 +47,11 @@ DEFAULT_GROUPS = 64
 #: deg/h -> rad/s (the gyro model's input unit to the integration's).
 DEG_H_TO_RAD_S = math.radians(1.0) / 3600.0
 #: Reasons a slew is dropped, as keys of :attr:`Slews.dropped`.
-DROP_REASONS = ("lost_frames", "invalid_frames", "saturated")
+DROP_REASONS = ("lost_frames", "invalid_frames", "saturated", "too_long")
+#: Longest motion between two windows taken as a slew, s. An indexing or fixture rotation lasts
+#: seconds; hours of hull motion between two port calls is no slew (the integrated gyro noise and
+#: every unmodelled term grow with it), and holding it would make memory grow with the recording.
+MAX_SLEW_S = 300.0
 #: Bound on P x slews x groups per batched evaluation (bounds the temporaries, ~25 MB each).
 _BATCH_ELEMENTS = 1 << 20
 _NPZ_VERSION = 1
@@ -218,20 +222,36 @@ def build_slews(
 
     ``window_start_s`` / ``window_end_s`` are the (M,) times of all windows.
     """
-    out = [group_increments(g, period_s, ref, groups) for _, _, ref, g in pieces]
-    first = np.array([p[0] for p in pieces], dtype=np.int64)
-    second = np.array([p[1] for p in pieces], dtype=np.int64)
+    reduced = [
+        (a, b, ref, g.shape[0], group_increments(g, period_s, ref, groups))
+        for a, b, ref, g in pieces
+    ]
+    return _assemble(reduced, period_s, window_start_s, window_end_s, dropped, groups)
+
+
+def _assemble(
+    reduced: Sequence[tuple[int, int, np.ndarray, int, tuple]],
+    period_s: float,
+    window_start_s: np.ndarray,
+    window_end_s: np.ndarray,
+    dropped: Mapping[str, int] | None,
+    groups: int,
+) -> Slews:
+    """:class:`Slews` from ``(first, second, reference, samples, group_increments(...))``."""
+    out = [r[4] for r in reduced]
+    first = np.array([r[0] for r in reduced], dtype=np.int64)
+    second = np.array([r[1] for r in reduced], dtype=np.int64)
     rows = np.stack([first, second], axis=1)
 
     def stack(i: int, shape: tuple[int, ...]) -> np.ndarray:
-        return np.array([o[i] for o in out], dtype=float).reshape((len(pieces),) + shape)
+        return np.array([o[i] for o in out], dtype=float).reshape((len(reduced),) + shape)
 
     return Slews(
         first=first,
         second=second,
         period_s=float(period_s),
-        samples=np.array([p[3].shape[0] for p in pieces], dtype=np.int64),
-        reference=np.array([p[2] for p in pieces], dtype=float).reshape(-1, 3),
+        samples=np.array([r[3] for r in reduced], dtype=np.int64),
+        reference=np.array([r[2] for r in reduced], dtype=float).reshape(-1, 3),
         group_samples=stack(0, (groups,)).astype(np.int64),
         sums=stack(1, (groups, 3)),
         weighted=stack(2, (groups, 3)),
@@ -247,9 +267,11 @@ class SlewCollector:
 
     Give it the windows (``recal.static.Window``: start_index, end_index and mean gyro output),
     then feed the recording's frames again in order (the keyword arguments of
-    ``StaticDetector.feed``). Only the frames of the slew being collected are held. A slew with
-    a lost frame (``lost_before``), an invalid frame or a gyro sample at ``gyro_limits`` (the
-    output's saturation values, when known) is dropped and counted.
+    ``StaticDetector.feed``). Only the raw frames of the slew being collected are held: a slew
+    is reduced to its group sums as soon as its last frame arrives, and one longer than
+    ``max_slew_s`` is never collected, so memory is bounded whatever the recording's length. A
+    slew with a lost frame (``lost_before``), an invalid frame or a gyro sample at
+    ``gyro_limits`` (the output's saturation values, when known) is dropped and counted.
     """
 
     def __init__(
@@ -258,6 +280,7 @@ class SlewCollector:
         period_s: float,
         gyro_limits: tuple[float, float] | None = None,
         groups: int = DEFAULT_GROUPS,
+        max_slew_s: float = MAX_SLEW_S,
     ) -> None:
         self._windows = list(windows)
         self._period = float(period_s)
@@ -267,8 +290,18 @@ class SlewCollector:
         self._lo = np.array([w.end_index + 1 for w in self._windows[:-1]], dtype=np.int64)
         self._hi = np.array([w.start_index + 1 for w in self._windows[1:]], dtype=np.int64)
         self._parts: list[list[np.ndarray]] = [[] for _ in self._lo]
-        self._bad: list[str | None] = [None] * len(self._lo)
+        self._held = np.zeros(len(self._lo), dtype=np.int64)  # raw frames held per slew
+        too_long = (self._hi - self._lo) * self._period > max_slew_s
+        self._bad: list[str | None] = ["too_long" if t else None for t in too_long]
+        self._reduced: dict[int, tuple] = {}  # slew -> (first, second, ref, samples, sums)
         self._index = 0  # global index of the next frame fed
+        for j in np.flatnonzero(self._hi == self._lo):  # back-to-back windows: an empty slew
+            self._reduce(int(j))
+
+    @property
+    def held_frames(self) -> int:
+        """Raw frames held now (at most those of the slews in progress)."""
+        return int(self._held.sum())
 
     def feed(self, time_s, gyro, accel=None, temperature_c=None, valid=None, lost_before=None):
         g = np.asarray(gyro, dtype=np.float64)
@@ -293,24 +326,33 @@ class SlewCollector:
                 self._bad[j] = "saturated"
             else:
                 self._parts[j].append(part.copy())
+                self._held[j] += part.shape[0]
+                if self._held[j] == self._hi[j] - self._lo[j]:
+                    self._reduce(int(j))
                 continue
-            self._parts[j] = []
+            self._parts[j], self._held[j] = [], 0
+
+    def _reduce(self, j: int) -> None:
+        """The slew's last frame arrived: keep its group sums, drop its frames."""
+        samples = np.concatenate(self._parts[j]) if self._parts[j] else np.zeros((0, 3))
+        ref = np.asarray(self._windows[j].gyro, float)
+        sums = group_increments(samples, self._period, ref, self._groups)
+        self._reduced[j] = (j, j + 1, ref, samples.shape[0], sums)
+        self._parts[j], self._held[j] = [], 0
 
     def result(self) -> Slews:
         dropped = dict.fromkeys(DROP_REASONS, 0)
-        pieces = []
+        reduced = []
         for j, bad in enumerate(self._bad):
             if bad is not None:
                 dropped[bad] += 1
-                continue
-            samples = np.concatenate(self._parts[j]) if self._parts[j] else np.zeros((0, 3))
-            if samples.shape[0] != self._hi[j] - self._lo[j]:
-                dropped["lost_frames"] += 1  # the recording ended early
-                continue
-            pieces.append((j, j + 1, np.asarray(self._windows[j].gyro, float), samples))
+            elif j in self._reduced:
+                reduced.append(self._reduced[j])
+            else:
+                dropped["lost_frames"] += 1  # the recording ended before the slew did
         start = np.array([w.start_s for w in self._windows], dtype=float)
         end = np.array([w.end_s for w in self._windows], dtype=float)
-        return build_slews(pieces, self._period, start, end, dropped, self._groups)
+        return _assemble(reduced, self._period, start, end, dropped, self._groups)
 
 
 # ---- integration, batched over parameter vectors ----------------------------------------------

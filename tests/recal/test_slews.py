@@ -111,11 +111,13 @@ def test_collector_drops_and_counts_a_slew_with_a_lost_frame(quiet_problem):
     lost[int(s.hold_last[2]) + 100] = 3  # in slew 2
     valid[int(s.hold_last[5]) + 10] = False  # in slew 5
     col = SlewCollector(windows, 1 / s.rate_hz)
+    longest = int((s.hold_first[1:] - s.hold_last[:-1]).max())
     for a in range(0, n, 7001):  # chunked like a stream
         sl = slice(a, a + 7001)
         col.feed(s.time_s[sl], s.gyro_out[sl], valid=valid[sl], lost_before=lost[sl])
+        assert col.held_frames <= longest  # raw frames of one slew at most, never the recording
     got = col.result()
-    assert got.dropped == {"lost_frames": 1, "invalid_frames": 1, "saturated": 0}
+    assert got.dropped == {"lost_frames": 1, "invalid_frames": 1, "saturated": 0, "too_long": 0}
     assert len(got) == s.n_holds - 3 and 2 not in got.first and 5 not in got.first
     whole = session_slews(s)
     keep = np.isin(whole.first, got.first)
@@ -123,6 +125,10 @@ def test_collector_drops_and_counts_a_slew_with_a_lost_frame(quiet_problem):
     limits = SlewCollector(windows, 1 / s.rate_hz, gyro_limits=(-1e12, 1e3))
     limits.feed(s.time_s, s.gyro_out)
     assert limits.result().dropped["saturated"] == s.n_holds - 1  # every slew turns past 1e3
+    # hours of motion between two windows is no slew: never collected, counted
+    short = SlewCollector(windows, 1 / s.rate_hz, max_slew_s=0.5 * longest / s.rate_hz)
+    short.feed(s.time_s, s.gyro_out)
+    assert short.held_frames == 0 and short.result().dropped["too_long"] == s.n_holds - 1
 
 
 def _skew(v):
