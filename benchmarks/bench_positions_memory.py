@@ -126,7 +126,7 @@ def main() -> None:
             out = folder / "pos.csv"
             wall, rss = run_child(positions(capture, out))
             windows = out.read_text().count("\n") - 1
-            rows.append((f"recal positions, flag-free (2 passes), {hours:g} h", wall, rss,
+            rows.append((f"recal positions, flag-free (3 passes: floor, windows, slews), {hours:g} h", wall, rss,
                          hours * 3600 / wall, windows))  # fmt: skip
             if hours == args.hours[0]:
                 wall, rss = run_child(positions(capture, out, "--init-still", "10"))
