@@ -253,6 +253,12 @@ class JobRunner:
         r.process.join(5.0)
         code = r.process.exitcode
         self._reap(r)
+        if code is not None and -code in (signal.SIGTERM, signal.SIGINT):
+            # a running worker ignores both: this one was still starting when a stop signal
+            # reached the whole process group (systemctl stop with KillMode=control-group)
+            return JobEnd(r.job, "cancelled", duration_s=elapsed,
+                          message=f"stopped by signal {-code} sent to the service's process "
+                          "group while the worker was starting")  # fmt: skip
         how = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
         if code == -signal.SIGKILL:
             how += ": killed, by the kernel's out-of-memory killer or by an operator"

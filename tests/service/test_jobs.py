@@ -216,3 +216,16 @@ def test_cancel_right_after_start_leaves_no_worker() -> None:
         runner.shutdown(wait_s=0)
         assert [e.status for e in ends] == ["cancelled"]
         assert not process.is_alive()
+
+
+def test_a_stop_signal_to_a_starting_worker_is_a_cancellation(runner: JobRunner) -> None:
+    """A running worker ignores SIGTERM; one still starting up dies of a group SIGTERM: that is
+    the service being stopped, reported as cancelled, not as a crash."""
+    done = threading.Event()
+    ends: list[JobEnd] = []
+    runner.submit(_sleep, (5.0,), lambda end: (ends.append(end), done.set()))
+    while runner._running is None:
+        time.sleep(0.001)
+    os.kill(runner._running.process.pid, signal.SIGTERM)  # at once: it is still importing
+    assert done.wait(30)
+    assert ends[0].status == "cancelled" and "signal 15" in ends[0].message
