@@ -56,7 +56,7 @@ def _feed(service, data: bytes, part: slice = slice(None)) -> None:
 
 def test_a_killed_worker_is_recorded_and_the_next_trigger_works(tmp_path, capture) -> None:
     settings = _settings(f"sqlite:///{tmp_path / 'r.db'}", tmp_path, method="nafsa",
-                         mc_runs=100_000)  # fmt: skip
+                         mc_runs=3000)  # fmt: skip
     service = build_service(settings, with_reader=False)
     try:
         _feed(service, capture)
@@ -217,7 +217,7 @@ def test_sigterm_to_the_whole_group_mid_job_exits_0(tmp_path, capture) -> None:
         f'[device]\nurl = "replay://{tmp_path / "capture.bin"}?speed=max&rate=100"\n'
         f"rate_hz = 100\n[detector]\naccel_threshold = 1e-6\ngyro_threshold = 1e4\n"
         f'[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "nafsa"\n'
-        f"mc_runs = 100000\nstop_wait_s = 1\n[api]\nport = {port}\n"
+        f"mc_runs = 3000\nstop_wait_s = 1\n[api]\nport = {port}\n"
     )
     proc = subprocess.Popen(
         [sys.executable, "-m", "service.cli.main", "serve", "--config", str(tmp_path / "recal.toml")],
