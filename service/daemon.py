@@ -28,6 +28,9 @@ from service.pipeline import FloorKeeper, Ingest, Scheduler, detector_config, wi
 
 log = logging.getLogger("recal.daemon")
 
+#: How often the published file is compared with the database, s.
+SYNC_EVERY_S = 10.0
+
 
 def sd_notify(message: str) -> bool:
     """Send a datagram to systemd's NOTIFY_SOCKET (no-op without it). Returns True if sent."""
@@ -59,6 +62,7 @@ class Service:
     reader: Any = None
     started: float = field(default_factory=time.monotonic)
     last_tick: float = field(default_factory=time.monotonic)
+    last_sync: float = field(default_factory=time.monotonic)
 
     def problems(self) -> list[str]:
         """Why the service is degraded, in plain words (empty when all is well)."""
@@ -137,7 +141,7 @@ class Service:
 
     def _due_sync(self) -> bool:
         # the file is compared with the database every 10 s: an edited or deleted file returns
-        return int(self.last_tick) % 10 == 0
+        return self.last_tick - self.last_sync >= SYNC_EVERY_S
 
     def sync_published(self) -> None:
         from service.db import StoreError
@@ -146,6 +150,7 @@ class Service:
             current = self.store.current()
         except StoreError:
             return
+        self.last_sync = time.monotonic()
         before = self.publisher.error
         if self.publisher.sync(current) and current is not None:
             self.events.emit("publish", f"version {current.version} written to "
