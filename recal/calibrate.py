@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -461,7 +461,19 @@ def _slew_gyro_models(
     )  # fmt: skip
 
 
-def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
+class _SetUp(NamedTuple):
+    """What a calibration starts from (shared by :func:`calibrate` and :func:`check_design`)."""
+
+    sensors: tuple[str, ...]
+    notes: list[str]
+    layout: ParameterLayout
+    theta0: np.ndarray  # the prior, (D,)
+    prior_source: str
+    problem: Problem
+    typical: np.ndarray  # typical change per parameter, (D,)
+
+
+def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes."""
     sensors = _resolve_sensors(positions, opt.sensor)
     notes: list[str] = []
@@ -525,7 +537,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> tuple:
             f"included; {np.median(slews.duration_s):.3g} s median)"
         )
     typical = layout.typical(theta0)
-    return sensors, notes, layout, theta0, prior_source, problem, typical
+    return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical)
 
 
 def check_design(positions: Positions, options: CalibrationOptions | None = None) -> None:
@@ -534,11 +546,11 @@ def check_design(positions: Positions, options: CalibrationOptions | None = None
     window noise when the positions carry it, else on structural rank alone (the decision on the
     estimated noise needs a fit). Cheap, so a service can answer a trigger with the reason."""
     opt = options or CalibrationOptions()
-    _, _, _, theta0, _, problem, typical = _set_up(positions, opt)
-    if problem.noise_known:
-        _decided(analyze(problem, theta0, typical))
+    su = _set_up(positions, opt)
+    if su.problem.noise_known:
+        _decided(analyze(su.problem, su.theta0, su.typical))
     else:
-        _decided(analyze(problem, theta0, typical, info_min=0.0))
+        _decided(analyze(su.problem, su.theta0, su.typical, info_min=0.0))
 
 
 def calibrate(
@@ -555,8 +567,7 @@ def calibrate(
         raise RecalInputError("--mc must be at least 1")
     if not -90 <= opt.latitude_deg <= 90:
         raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
-    setup = _set_up(positions, opt)
-    sensors, notes, layout, theta0, prior_source, problem, typical = setup
+    sensors, notes, layout, theta0, prior_source, problem, typical = _set_up(positions, opt)
     evaluations = 0
     theta_fit: np.ndarray | None = None  # an LM optimum on report.basis, when one exists
     if problem.noise_known:

@@ -375,10 +375,13 @@ class Store:
         source = f"store {self.url}" + (f" positions {ids[0]}..{ids[-1]}" if ids else "")
         return Positions(columns=_columns_of(rows), source=source), ids
 
-    def count_positions(self, session_id: int | None = None) -> int:
+    def count_positions(self, session_id: int | None = None, since_id: int | None = None) -> int:
+        """Stored positions (of one session; with ids after ``since_id``)."""
         query = select(func.count(PositionRow.id))
         if session_id is not None:
             query = query.where(PositionRow.session_id == session_id)
+        if since_id is not None:
+            query = query.where(PositionRow.id > since_id)
         with self._tx() as s:
             return int(s.scalar(query) or 0)
 

@@ -503,9 +503,8 @@ class Scheduler:
         )
         latest = self._store.history(limit=1)
         seen = max(latest[0].positions_used, default=0) if latest else 0
-        _, new_ids = self._store.positions(since_id=seen, limit=100_000)
         s = self._settings.scheduler
-        due = len(new_ids) >= s.min_new_positions and (
+        due = self._store.count_positions(since_id=seen) >= s.min_new_positions and (
             self._store.count_positions() >= s.min_positions
         )
         if not (interrupted or due):
