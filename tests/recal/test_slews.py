@@ -20,9 +20,14 @@ from recal.slews import (
     DEG_H_TO_RAD_S,
     SlewCollector,
     Slews,
+    SlewTracker,
     build_slews,
+    compose_groups,
+    group_increments,
     integrate_samples,
+    shift_reference,
     slew_rotations,
+    slews_from_reduced,
 )
 from recal.terms import MISALIGNMENT_INDEX
 
@@ -221,3 +226,82 @@ def test_a_gyro_blind_to_earth_rate_is_calibrated_from_the_slews():
                    latitude_deg=45.0, seed=1, rate_hz=200, window_s=20, slew_s=5, noise=noisy)),
                    CalibrationOptions(latitude_deg=45.0))  # fmt: skip
     assert r0.problem.sensors == ("accel",)  # without slews it is skipped, as before
+
+
+def test_group_sums_compose_and_shift_exactly():
+    """Joining runs of groups and changing the reference reproduce the direct sums."""
+    rng = np.random.default_rng(5)
+    g = rng.normal(size=(1000, 3)) * 50 + 7
+    ref = np.array([3.0, -1.0, 2.0])
+    small = group_increments(g, 0.01, np.zeros(3), 125)  # blocks of 8
+    starts = (np.arange(16) * 125) // 16
+    joined = shift_reference(*compose_groups(*small, starts), ref * 0.01)
+    # the same group boundaries, computed directly from the samples
+    counts = joined[0]
+    direct = [group_increments(c, 0.01, ref, 1) for c in np.split(g, np.cumsum(counts)[:-1])]
+    for k in range(1, 4):
+        want = np.concatenate([d[k] for d in direct])
+        assert np.allclose(joined[k], want, rtol=1e-10, atol=1e-9)
+
+
+class _Win:
+    """The Window fields the collector and the tracker read, from a simulated session."""
+
+    def __init__(self, s, k):
+        self.start_index, self.end_index = int(s.hold_first[k]), int(s.hold_last[k])
+        self.start_s, self.end_s = s.hold_start_s[k], s.hold_end_s[k]
+        self.gyro = s.gyro_out[self.start_index : self.end_index + 1].mean(axis=0)
+
+
+def _track(s, windows, chunk, valid=None, lost=None, **kw):
+    """Feed a session to a SlewTracker in chunks, closing each window one chunk after it ends
+    (a live detector closes a window only after its end)."""
+    tr = SlewTracker(1 / s.rate_hz, **kw)
+    out, pending = [], list(windows)
+    peak = 0
+    for a in range(0, len(s), chunk):
+        sl = slice(a, a + chunk)
+        tr.feed(s.gyro_out[sl], None if valid is None else valid[sl],
+                None if lost is None else lost[sl])  # fmt: skip
+        while pending and pending[0].end_index < a:  # closed a chunk late
+            r = tr.window(pending.pop(0))
+            if r is not None:
+                out.append(r)
+        peak = max(peak, tr.held_bytes)
+    for w in pending:
+        r = tr.window(w)
+        if r is not None:
+            out.append(r)
+    return out, peak
+
+
+def test_live_tracker_matches_the_collector_with_bounded_memory(quiet_problem):
+    """The daemon's tracker gives the slews of the offline collector (the integrated rotations
+    agree to the Earth rotation over the <= 7 extra static frames), holds a bounded number of
+    bytes, and drops a slew with a lost frame."""
+    s, models, theta = quiet_problem
+    windows = [_Win(s, k) for k in range(s.n_holds)]
+    lost = np.zeros(len(s), dtype=np.int64)
+    lost[int(s.hold_last[2]) + 100] = 1  # in slew 2
+    reduced, peak = _track(s, windows, 3000, lost=lost, lag_s=30.0, max_slew_s=60.0)
+    start = np.array([w.start_s for w in windows])
+    end = np.array([w.end_s for w in windows])
+    rows = {id(w): k for k, w in enumerate(windows)}
+    live = slews_from_reduced([(rows[id(r.first)], rows[id(r.second)], r) for r in reduced],
+                              1 / s.rate_hz, start, end)  # fmt: skip
+    assert live.dropped["lost_frames"] == 1 and len(live) == s.n_holds - 2
+    assert 2 not in live.first
+    # (30 s lag + 60 s slew) of blocks of 8 frames at 200 Hz, 10 float64 each, + a little
+    assert peak < (90 * 200 / 8 + 10) * 100
+    whole = session_slews(s)
+    keep = np.isin(whole.first, live.first)
+    gyro = models[0]
+    sl = slice(0, gyro.size)
+    gain, A, offset, _ = gyro._parts(theta[None, sl], {})
+    q_live, _ = slew_rotations(live, gain, A, offset)
+    q_all, _ = slew_rotations(whole.subset(keep), gain, A, offset)
+    dq = np.minimum(
+        np.linalg.norm(q_live - q_all, axis=-1), np.linalg.norm(q_live + q_all, axis=-1)
+    )
+    earth_8_frames = OMEGA_IE_RAD_S * 16 / s.rate_hz
+    assert dq.max() < earth_8_frames + 1e-9
