@@ -47,6 +47,9 @@ from recal.positions import (
 
 #: Reasons a static run is rejected, as keys of :attr:`DetectionReport.rejected`.
 REJECT_REASONS = ("too_short", "invalid_status", "sequence_gap", "rotating")
+#: Rejected stretches listed in :attr:`DetectionReport.rejected_stretches` at most (the counts in
+#: ``rejected`` stay complete): a plot needs them, and a noisy recording can have very many.
+MAX_REJECTED_STRETCHES = 10_000
 #: Columns beyond conventions section 4 that :func:`windows_to_columns` adds.
 EXTRA_COLUMNS = ("frames_lost", "frames_invalid")
 
@@ -260,6 +263,21 @@ class DetectionReport:
     longest_short_frames: int = 0  # the longest of them, quiet frames
     edge_trim_frames: int = 0
     required_frames: int = 0
+    #: (start_s, end_s, reason) of rejected quiet stretches, times from the session start, in the
+    #: order they were decided, at most MAX_REJECTED_STRETCHES. A quiet run too short as a whole
+    #: is one "too_short" stretch; a piece of a long run cut short by a fault is listed under that
+    #: fault; "rotating" and "invalid_status" give the trimmed run's first and last frame.
+    rejected_stretches: list[tuple[float, float, str]] = field(default_factory=list)
+
+    def _add_stretches(self, start_s, end_s, reason) -> None:
+        """List rejected stretches (scalars or arrays; reason one name or one per stretch)."""
+        room = MAX_REJECTED_STRETCHES - len(self.rejected_stretches)
+        start = np.atleast_1d(np.asarray(start_s, dtype=float))[:room]
+        if room <= 0 or start.size == 0:
+            return
+        end = np.atleast_1d(np.asarray(end_s, dtype=float))[:room]
+        why = np.broadcast_to(np.asarray(reason), (np.atleast_1d(start_s).shape[0],))[:room]
+        self.rejected_stretches.extend(zip(start.tolist(), end.tolist(), why.tolist(), strict=True))
 
     def accepting_min_duration_s(self) -> float | None:
         """The largest min_duration_s that would keep the longest too-short quiet stretch, s
@@ -346,9 +364,16 @@ class StaticDetector:
     Memory is bounded by the frames not yet decided: about two moving windows plus the edge trim,
     plus the initial still period while thresholds are being learned. An open window is kept as
     running sums, however long it lasts.
+
+    ``on_traces``, when given, is called as each batch of frames gets its moving variance, in
+    frame order, with keyword arguments: first_index (global index of the batch's first frame),
+    time_s (from the session start), gyro and accel (n, 3) and temperature_c (n,) as fed, valid
+    (n,) bool, accel_trace and gyro_trace (n,) moving-variance traces, (input units)^2 (inf where
+    the window holds too few valid frames). The arrays are views: copy what is kept. It is how a
+    report follows the whole recording without this class keeping it.
     """
 
-    def __init__(self, config: DetectorConfig) -> None:
+    def __init__(self, config: DetectorConfig, on_traces=None) -> None:
         if not config.has_thresholds:
             raise RecalInputError(
                 "the detector needs both accel and gyro thresholds, an initial still period "
@@ -356,6 +381,7 @@ class StaticDetector:
             )
         self.config = config
         self.report = DetectionReport()
+        self._on_traces = on_traces
         self._data = np.empty((0, _NCOL))
         self._base = 0  # global index of _data[0]
         self._received = 0
@@ -397,6 +423,7 @@ class StaticDetector:
         self._q_open: tuple[int, int] | None = None  # (start, fault kind on its left)
         self._c_open: int | None = None  # start of the open quiet candidate
         self._c_pending = np.zeros(3, dtype=np.int64)  # short pieces in it, by fault kind
+        self._c_pieces = np.zeros((0, 3))  # and their (start_s, end_s, fault kind)
         self._qhist = np.zeros(0, dtype=bool)
         # Stage 3: trimmed runs and their running sums.
         self._next_m = 0
@@ -607,6 +634,17 @@ class StaticDetector:
             trg[sl] = np.where(measured, var[:, 0:3].sum(axis=1), np.inf)
         stats = self._view(lo, hi)
         stats[:, _TRA], stats[:, _TRG] = tra, trg  # kept for the windows' mean trace
+        if self._on_traces is not None:
+            self._on_traces(
+                first_index=lo,
+                time_s=stats[:, _T] - self._t0,
+                gyro=stats[:, _G],
+                accel=stats[:, _A],
+                temperature_c=stats[:, _TEMP],
+                valid=stats[:, _VALID] > 0,
+                accel_trace=tra,
+                gyro_trace=trg,
+            )
         self._next_center = hi
         return lo, n, tra, trg
 
@@ -734,11 +772,47 @@ class StaticDetector:
         rejected["too_short"] += int((~long_c).sum()) + int(per_c[:c_closed][long_c, 0].sum())
         for kind, name in _FAULT_NAMES.items():
             rejected[name] += int(per_c[:c_closed][long_c, kind].sum())
+        if short.any() or (~long_c).any() or self._c_pieces.shape[0]:
+            self._list_rejections(lo, q_en[short] + lo - 1, p_short_start, cause, owner,
+                                  c_starts, c_en + lo - 1, long_c, carried)  # fmt: skip
         if c_starts.shape[0] > c_closed:
             self._c_open, self._c_pending = int(c_starts[-1]), per_c[-1]
         else:
             self._c_open, self._c_pending = None, np.zeros(3, dtype=np.int64)
         self._prev_vq, self._prev_q, self._prev_fault = bool(vq[-1]), bool(q[-1]), int(fault[-1])
+
+    def _list_rejections(self, lo, p_last, p_first, cause, owner, c_first, c_last, long_c, carried):
+        """The stretches behind the counts of :meth:`_count_rejections`, as session times.
+
+        Short pieces wait with their candidate (times taken now, while their frames are held):
+        they are listed under their fault once it closes long, else the candidate is one
+        too_short stretch.
+        """
+        rep = self.report
+        c_closed = c_last.shape[0]
+        short_c = np.flatnonzero(~long_c)
+        rep._add_stretches(self._times(c_first[short_c]), self._times(c_last[short_c]), "too_short")
+        pieces = np.column_stack((self._times(p_first), self._times(p_last), cause))
+        if carried:  # pieces of the candidate open before this call belong to owner 0
+            pieces = np.concatenate((self._c_pieces, pieces))
+            owner = np.concatenate((np.zeros(self._c_pieces.shape[0], dtype=owner.dtype), owner))
+        done = owner < c_closed
+        keep = np.zeros_like(done)
+        keep[done] = long_c[owner[done]]
+        names = np.array(["too_short", *_FAULT_NAMES.values()])
+        listed = pieces[keep]
+        rep._add_stretches(listed[:, 0], listed[:, 1], names[listed[:, 2].astype(int)])
+        self._c_pieces = pieces[~done]
+
+    def _times(self, index: np.ndarray) -> np.ndarray:
+        """Session times (s) of frame indices; a frame no longer held is placed by the rate."""
+        index = np.asarray(index, dtype=np.int64)
+        if index.size == 0:
+            return np.zeros(0)
+        k = np.clip(index - self._base, 0, self._data.shape[0] - 1)
+        held = self._data[k, _T] - self._t0
+        before = self._data[0, _T] - self._t0 - (self._base - index) / self._geom.rate
+        return np.where(index >= self._base, held, before)
 
     def _trim(self, lo: int, q: np.ndarray, final: bool) -> None:
         """Erode the pieces by the edge trim: frame j is kept when q holds on [j-T, j+T]."""
@@ -841,14 +915,17 @@ class StaticDetector:
         s = piece.sums
         n = s[0]
         rejected = self.report.rejected
+        span = (piece.t_first - self._t0, piece.t_last - self._t0)
         if n < 2:
             rejected["invalid_status"] += 1
+            self.report._add_stretches(*span, "invalid_status")
             return
         d_g, d_a = s[1:4] / n, s[7:10] / n
         gyro = piece.g_ref + d_g
         limit = self.config.gyro_rate_max
         if limit is not None and float(np.linalg.norm(gyro - self._gyro_ref)) > limit:
             rejected["rotating"] += 1
+            self.report._add_stretches(*span, "rotating")
             return
         var_g = np.maximum(s[4:7] - s[1:4] * d_g, 0.0) / (n - 1)
         var_a = np.maximum(s[10:13] - s[7:10] * d_a, 0.0) / (n - 1)
