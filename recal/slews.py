@@ -442,6 +442,7 @@ class SlewTracker:
         max_slew_s: float = MAX_SLEW_S,
         block: int = 8,
         lag_s: float = 60.0,
+        start_index: int = 0,
     ) -> None:
         self._dt = float(period_s)
         self._limits = gyro_limits
@@ -449,15 +450,21 @@ class SlewTracker:
         self._block = int(block)
         self._max_frames = int(math.ceil(max_slew_s / self._dt))
         self._lag_blocks = int(math.ceil(lag_s / self._dt / self._block)) + 1
-        self._index = 0  # global index of the next frame
-        self._raw = np.zeros((0, 3))  # frames of the incomplete last block
-        self._raw_bad = 0  # worst flag among them
+        # global index of the next frame; frames before start_index were never seen: those of
+        # its block are stand-ins flagged lost, so no slew is integrated across them
+        self._index = int(start_index)
+        self._raw = np.zeros((self._index % self._block, 3))  # frames of the incomplete block
+        self._raw_bad = 1 if self._raw.shape[0] else 0  # first non-zero flag among them
         # reduced blocks: global block index -> row, kept as parallel arrays
         self._idx = np.zeros(0, dtype=np.int64)
         self._data = np.zeros((0, 10))  # count, S(3), W(3), C(3)
         self._bad = np.zeros(0, dtype=np.int8)  # 0 ok, else 1 + DROP_REASONS index
         self._prev: Any = None  # the last window closed
         self._lo: int | None = None  # first frame of the slew after it
+
+    @property
+    def period_s(self) -> float:
+        return self._dt
 
     @property
     def held_bytes(self) -> int:
@@ -567,6 +574,42 @@ def slews_from_reduced(
         else:
             kept.append((a, b, r.reference, r.samples, r.groups))
     return _assemble(kept, period_s, window_start_s, window_end_s, dropped, groups)
+
+
+def in_accel_frame(theta: np.ndarray, layout: Any) -> np.ndarray:
+    """Coefficients (flat, ``layout``: a ParameterLayout) with both triads' frames turned
+    together until the accelerometer's antisymmetric misalignment is zero.
+
+    That common rotation is invisible without an outside reference, so a fit with slews holds
+    it (the accelerometer frame is the reference, its antisymmetric part held at a zero prior):
+    compare a simulated truth with such a fit in this gauge. Exact (a fixed-point on the
+    rotation), with each row's diagonal returned to the scale factor and bias.
+    """
+    from scipy.linalg import expm
+
+    from recal.terms import MISALIGNMENT_INDEX
+
+    th, sl = np.array(theta, float), layout.term_slices()
+    rows, cols = zip(*MISALIGNMENT_INDEX, strict=True)
+    A = {}
+    for s in ("gyro", "accel"):
+        E = np.zeros((3, 3))
+        E[rows, cols] = th[sl[f"{s}.misalignment"]]
+        A[s] = np.eye(3) + E
+    Rc = np.eye(3)
+    for _ in range(8):
+        Aa = A["accel"] @ Rc
+        Ea = Aa / np.diag(Aa)[:, None]
+        W = 0.5 * (Ea - Ea.T)
+        w = np.array([W[2, 1], W[0, 2], W[1, 0]])
+        Rc = Rc @ expm(-np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]))
+    for s in ("gyro", "accel"):
+        Ap = A[s] @ Rc
+        d = np.diag(Ap)
+        th[sl[f"{s}.misalignment"]] = (Ap / d[:, None])[rows, cols]
+        th[sl[f"{s}.scale"]] *= d
+        th[sl[f"{s}.bias"]] /= d
+    return th
 
 
 # ---- integration, batched over parameter vectors ----------------------------------------------

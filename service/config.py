@@ -110,6 +110,8 @@ class SchedulerSettings(Section):
     method: Literal["lm", "nafsa", "safsa", "oafsa"] = "lm"
     mc_runs: int = Field(100, ge=1)
     use_last_positions: int = Field(200, ge=1)
+    #: calibrate the gyro from the stored motion between windows too (recal.slews)
+    use_slews: bool = True
     #: a job running longer is killed and recorded as failed (s)
     job_timeout_s: float = Field(1800.0, gt=0)
     #: at shutdown a running job may finish for this long, then it is abandoned (s); keep it

@@ -103,6 +103,8 @@ class Service:
             "windows": self.ingest.windows,
             "windows_spooled": self.ingest.spooled,
             "windows_dropped": self.ingest.windows_dropped,
+            "slews": self.ingest.slews,
+            "slews_dropped": dict(self.ingest.slews_dropped),
             "recalibrating": self.scheduler.busy,
             "scheduler": self.scheduler.health(),
             "detector": self.ingest.detector_health(),

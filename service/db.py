@@ -24,6 +24,7 @@ from sqlalchemy import (
     Double,
     Engine,
     ForeignKey,
+    LargeBinary,
     String,
     Text,
     create_engine,
@@ -180,6 +181,24 @@ class NoiseFloorRow(Base):
     windows: Mapped[int] = mapped_column(default=0)
 
 
+class SlewRow(Base):
+    """The motion between two stored windows, reduced to group sums (recal.slews), or the
+    reason it was dropped (``dropped``; then ``data`` is NULL). ``data`` holds float64 values:
+    the first window's mean gyro output (3), then per group its sample count, S, W and C
+    (``groups`` x 10)."""
+
+    __tablename__ = "slews"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    first_id: Mapped[int] = mapped_column(ForeignKey("positions.id"), index=True)
+    second_id: Mapped[int] = mapped_column(ForeignKey("positions.id"), index=True)
+    period_s: Mapped[float]
+    samples: Mapped[int]
+    groups: Mapped[int]
+    data: Mapped[bytes | None] = mapped_column(LargeBinary)
+    dropped: Mapped[str | None] = mapped_column(String(32))
+
+
 _missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
 assert not _missing, f"PositionRow lacks conventions columns {_missing}"
 
@@ -328,10 +347,20 @@ class Store:
             s.flush()
             return row.id
 
-    def add_positions(self, session_id: int, columns: Mapping[str, ArrayLike]) -> list[int]:
+    def add_positions(
+        self,
+        session_id: int,
+        columns: Mapping[str, ArrayLike],
+        slews: Sequence[tuple[int, int, Any]] = (),
+        period_s: float | None = None,
+        previous_id: int | None = None,
+    ) -> list[int]:
         """Store positions (name -> (M,) array, conventions section 4); returns their ids.
 
         The columns are validated as a :class:`Positions` first (RecalInputError if bad).
+        ``slews``: ``(first row, second row, recal.slews.ReducedSlew)`` between these windows,
+        stored in the same transaction; row -1 is the window stored before, ``previous_id``
+        (a slew whose first window is unknown is skipped). ``period_s``: gyro sample period.
         """
         table = Positions.from_columns(columns, source=f"positions for session {session_id}")
         known = [c for c in POSITION_COLUMNS if c in table.columns]
@@ -349,7 +378,24 @@ class Store:
                 raise StoreError(f"unknown session {session_id}")
             s.add_all(rows)
             s.flush()
-            return [r.id for r in rows]
+            ids = [r.id for r in rows]
+            s.add_all(_slew_rows(slews, ids, previous_id, period_s))
+            return ids
+
+    def slews(self, ids: Sequence[int]) -> list[SlewRecord]:
+        """The stored slews between positions of ``ids`` (both ends in it), in id order."""
+        wanted = set(ids)
+        if not wanted:
+            return []
+        lo, hi = min(wanted), max(wanted)
+        query = (
+            select(SlewRow)
+            .where(SlewRow.first_id >= lo, SlewRow.second_id <= hi)
+            .order_by(SlewRow.id)
+        )
+        with self._tx() as s:
+            rows = list(s.scalars(query))
+        return [_slew_record(r) for r in rows if r.first_id in wanted and r.second_id in wanted]
 
     def positions(
         self,
@@ -537,6 +583,54 @@ class Store:
 
 
 # ---- helpers ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SlewRecord:
+    """A stored slew (see :class:`SlewRow`); ``groups`` is None when it was dropped."""
+
+    first_id: int
+    second_id: int
+    period_s: float
+    samples: int
+    reference: np.ndarray | None
+    groups: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+    dropped: str | None
+
+
+def _slew_rows(
+    slews: Sequence[tuple[int, int, Any]],
+    ids: list[int],
+    previous_id: int | None,
+    period_s: float | None,
+) -> list[SlewRow]:
+    out = []
+    for a, b, r in slews:
+        first = previous_id if a < 0 else ids[a]
+        if first is None or period_s is None:
+            continue
+        data = None
+        G = 0
+        if r.groups is not None:
+            counts, S, W, C = r.groups
+            G = int(counts.shape[0])
+            body = np.column_stack([counts, S, W, C]).astype(np.float64)
+            data = np.concatenate([np.asarray(r.reference, np.float64), body.ravel()]).tobytes()
+        out.append(SlewRow(first_id=first, second_id=ids[b], period_s=float(period_s),
+                           samples=int(r.samples), groups=G, data=data,
+                           dropped=r.dropped))  # fmt: skip
+    return out
+
+
+def _slew_record(row: SlewRow) -> SlewRecord:
+    ref = groups = None
+    if row.data is not None:
+        v = np.frombuffer(row.data, dtype=np.float64)
+        ref, body = v[:3].copy(), v[3:].reshape(row.groups, 10)
+        groups = (body[:, 0].astype(np.int64), body[:, 1:4].copy(), body[:, 4:7].copy(),
+                  body[:, 7:10].copy())  # fmt: skip
+    return SlewRecord(row.first_id, row.second_id, row.period_s, row.samples, ref, groups,
+                      row.dropped)  # fmt: skip
 
 
 def _require_known(found: int | None, url: str) -> None:

@@ -24,6 +24,7 @@ from recal.calibrate import CalibrationOptions, calibrate, check_design
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
 from recal.positions import Positions
+from recal.slews import ReducedSlew, SlewTracker, slews_from_reduced
 from recal.static import (
     DetectorConfig,
     NoiseFloor,
@@ -142,8 +143,25 @@ class FloorKeeper:
         self.save(floor, f"refined from {self._windows} windows that passed")
 
 
+@dataclass
+class _Spooled:
+    """Windows closed by one detector call, with the slews between them, waiting to be stored.
+
+    slews: (first row, second row, recal.slews.ReducedSlew); row -1 is the window stored just
+    before this batch (``after_gap``: that window was dropped from the spool, so those slews
+    are skipped).
+    """
+
+    columns: dict[str, np.ndarray]
+    slews: list[tuple[int, int, Any]]
+    after_gap: bool = False
+
+
 class Ingest:
     """Feeds decoded frames to the static detector and stores each closed window.
+
+    The motion between consecutive windows is kept too (:class:`recal.slews.SlewTracker`,
+    bounded memory) and stored with them, so the gyro can be calibrated from the slews.
 
     A window that cannot be stored (database outage) waits in a bounded spool, in order, and is
     retried with exponential back-off from :meth:`poll`; nothing is dropped unless the spool
@@ -183,7 +201,12 @@ class Ingest:
         self._count = 0
         self._first_pending = 0.0
         self._lock = threading.Lock()
-        self._spool: deque[dict[str, np.ndarray]] = deque()
+        self._spool: deque[_Spooled] = deque()
+        self._tracker: SlewTracker | None = None
+        self._fed = 0  # frames given to the detector
+        self._last_id: int | None = None  # the last window stored (first end of the next slew)
+        self.slews = 0
+        self.slews_dropped: dict[str, int] = {}
         self._retry_at = 0.0
         self._backoff_s = SPOOL_RETRY_MIN_S
         self.store_error: str | None = None
@@ -304,6 +327,7 @@ class Ingest:
             windows += self._detector.feed(
                 b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid, b.lost_before
             )
+            self._track(b)
         if flush and self._detector is not None:
             windows += self._detector.flush()
         if self._detector is not None and self._learned_from_still:
@@ -320,16 +344,40 @@ class Ingest:
             if len(self._spool) >= SPOOL_MAX:
                 self._spool.popleft()
                 self.windows_dropped += 1
-            self._spool.append(windows_to_columns(windows))
+                if self._spool:
+                    self._spool[0].after_gap = True
+            slews = []
+            if self._tracker is not None:
+                for k, w in enumerate(windows):
+                    r = self._tracker.window(w)
+                    if r is not None:
+                        slews.append((k - 1, k, r))
+            self._spool.append(_Spooled(windows_to_columns(windows), slews))
             self._retry_at = 0.0  # new data: try the database now
         return self._drain() if self._spool and time.monotonic() >= self._retry_at else []
+
+    def _track(self, b: Any) -> None:
+        """Give the frames the detector just took to the slew tracker (created once the frame
+        rate is known; frames before it cannot be part of a slew)."""
+        if self._tracker is None:
+            rate = self._detector.report.sample_rate_hz or self._config.sample_rate_hz
+            if rate:
+                self._tracker = SlewTracker(1.0 / rate, start_index=self._fed)
+        if self._tracker is not None:
+            self._tracker.feed(b.gyro_dph, b.valid, b.lost_before)
+        self._fed += len(b)
 
     def _drain(self) -> list[int]:
         """Store spooled windows in order until the spool is empty or the database fails."""
         stored: list[int] = []
         while self._spool:
+            entry = self._spool[0]
+            slews = [x for x in entry.slews if x[0] >= 0 or not entry.after_gap]
+            period = None if self._tracker is None else self._tracker.period_s
             try:
-                ids = self._store.add_positions(self._session, self._spool[0])
+                ids = self._store.add_positions(
+                    self._session, entry.columns, slews, period, self._last_id
+                )
             except StoreError as exc:
                 if self.store_error is None:
                     self._events.emit("database", f"cannot store windows, spooling them: {exc}",
@@ -340,6 +388,12 @@ class Ingest:
                 break
             self._spool.popleft()
             stored += ids
+            self._last_id = ids[-1] if ids else self._last_id
+            for *_, r in slews:
+                if r.dropped is None:
+                    self.slews += 1
+                else:
+                    self.slews_dropped[r.dropped] = self.slews_dropped.get(r.dropped, 0) + 1
         if stored:
             if self.store_error is not None:
                 self._events.emit("database", "database back: spooled windows stored",
@@ -461,6 +515,7 @@ class Scheduler:
             if len(ids) > keep:  # the most recent windows describe the unit as it is now
                 positions, ids = positions.subset(np.arange(len(ids) - keep, len(ids))), ids[-keep:]
             previous = self._store.current()
+            slews = self._slews(positions, ids) if s.scheduler.use_slews else None
             options = CalibrationOptions(
                 sensor=None if s.scheduler.sensor == "both" else s.scheduler.sensor,
                 method=s.scheduler.method,
@@ -468,6 +523,7 @@ class Scheduler:
                 latitude_deg=s.site.latitude_deg,
                 height_m=s.site.height_m,
                 prior=self._prior(previous),
+                slews=slews,
             )
             try:  # a design the engine would refuse is refused now, with its reason
                 check_design(positions, options)
@@ -493,6 +549,25 @@ class Scheduler:
                           {"job": job, "state": "started", "trigger": trigger,
                            "positions": len(ids)})  # fmt: skip
         return job
+
+    def _slews(self, positions: Positions, ids: list[int]) -> Any:
+        """The stored slews between these positions, with their rows (None when there are none)."""
+        records = self._store.slews(ids)
+        if not records:
+            return None
+        row = {pid: k for k, pid in enumerate(ids)}
+        period = records[0].period_s
+        reduced = [
+            (
+                row[r.first_id],
+                row[r.second_id],
+                ReducedSlew(None, None, r.reference, r.samples, r.groups, r.dropped),
+            )  # fmt: skip
+            for r in records
+            if abs(r.period_s - period) <= 1e-9 * period  # one frame rate per calibration
+        ]
+        cols = positions.columns
+        return slews_from_reduced(reduced, period, cols["start_s"], cols["end_s"])
 
     def resume(self) -> int | None:
         """At start: run the job a restart interrupted, or the one new positions justify."""

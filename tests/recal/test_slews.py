@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.linalg import expm
 
 from recal.calibrate import CalibrationOptions, build_models, calibrate
 from recal.coefficients import CoefficientSet
@@ -24,12 +23,12 @@ from recal.slews import (
     build_slews,
     compose_groups,
     group_increments,
+    in_accel_frame,
     integrate_samples,
     shift_reference,
     slew_rotations,
     slews_from_reduced,
 )
-from recal.terms import MISALIGNMENT_INDEX
 
 QUIET = NoiseSpec(arw_deg_rt_h=0.0, vrw_ug_rt_hz=0.0)
 
@@ -136,36 +135,6 @@ def test_collector_drops_and_counts_a_slew_with_a_lost_frame(quiet_problem):
     assert short.held_frames == 0 and short.result().dropped["too_long"] == s.n_holds - 1
 
 
-def _skew(v):
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-
-
-def accel_frame_truth(theta: np.ndarray, layout: ParameterLayout) -> np.ndarray:
-    """The truth with both triads' frames turned together until the accelerometer's
-    antisymmetric misalignment is zero: the gauge the slew fit reports (accel frame = reference,
-    held at the zero prior). Exact, with the diagonal returned to the scale and bias."""
-    th, sl = np.array(theta, float), layout.term_slices()
-    rows, cols = zip(*MISALIGNMENT_INDEX, strict=True)
-    A = {}
-    for s in ("gyro", "accel"):
-        E = np.zeros((3, 3))
-        E[rows, cols] = th[sl[f"{s}.misalignment"]]
-        A[s] = np.eye(3) + E
-    Rc = np.eye(3)
-    for _ in range(8):
-        Aa = A["accel"] @ Rc
-        Ea = Aa / np.diag(Aa)[:, None]
-        W = 0.5 * (Ea - Ea.T)
-        Rc = Rc @ expm(-_skew([W[2, 1], W[0, 2], W[1, 0]]))
-    for s in ("gyro", "accel"):
-        Ap = A[s] @ Rc
-        d = np.diag(Ap)
-        th[sl[f"{s}.misalignment"]] = (Ap / d[:, None])[rows, cols]
-        th[sl[f"{s}.scale"]] *= d
-        th[sl[f"{s}.bias"]] /= d
-    return th
-
-
 def _fit(seed: int, slews: bool, noise: NoiseSpec | None = None, truth=None):
     truth = truth or CoefficientSet.seed_truth()
     s = simulate_session(truth, "24", latitude_deg=45.0, seed=seed, rate_hz=200, window_s=20,
@@ -174,7 +143,7 @@ def _fit(seed: int, slews: bool, noise: NoiseSpec | None = None, truth=None):
     r = calibrate(session_positions(s), opt)
     tv = truth.to_vector(r.layout)
     if slews:
-        tv = accel_frame_truth(tv, r.layout)
+        tv = in_accel_frame(tv, r.layout)
     sd = np.concatenate([r.uncertainty[n] for n in r.layout.term_slices()])
     status = np.concatenate([r.status[n] for n in r.layout.term_slices()])
     return r, r.theta - tv, sd, status

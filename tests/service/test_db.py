@@ -17,6 +17,7 @@ from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
 from recal.positions import Positions
 from recal.simulate import simulate_positions
+from recal.slews import ReducedSlew
 from service.db import SCHEMA_VERSION, CalibrationRecord, SchemaVersionRow, Store, StoreError
 
 
@@ -50,6 +51,39 @@ def test_positions_round_trip_exactly(store: Store) -> None:
         np.testing.assert_array_equal(table.columns[name], values)  # bit for bit
     assert Positions.from_csv_text(table.to_csv_text()).columns.keys() == cols.keys()
     assert store.count_positions() == 6 and store.count_positions(sid) == 6
+
+
+def test_slews_are_stored_with_their_windows(store: Store) -> None:
+    """Slews go in with the positions (one transaction), bit for bit; a dropped one keeps its
+    reason; one whose first window was stored earlier links to it; a query returns only the
+    slews with both windows in the asked ids."""
+    rng = np.random.default_rng(1)
+    G = 4
+
+    def reduced(dropped=None):
+        groups = None
+        if dropped is None:
+            groups = (rng.integers(0, 9, G), rng.normal(size=(G, 3)), rng.normal(size=(G, 3)),
+                      rng.normal(size=(G, 3)))  # fmt: skip
+        return ReducedSlew(None, None, rng.normal(size=3), 17, groups, dropped)
+
+    sid = store.add_session("replay://x")
+    first = store.add_positions(sid, simulated(2, seed=1), [(0, 1, reduced())], 0.005)
+    a, b = reduced(), reduced("lost_frames")
+    more = store.add_positions(sid, simulated(2, seed=2), [(-1, 0, a), (0, 1, b)], 0.005,
+                               previous_id=first[-1])  # fmt: skip
+    got = store.slews(first + more)
+    assert [(r.first_id, r.second_id) for r in got] == [
+        (first[0], first[1]),
+        (first[1], more[0]),
+        (more[0], more[1]),
+    ]
+    assert got[1].samples == 17 and got[1].period_s == 0.005
+    np.testing.assert_array_equal(got[1].reference, a.reference)
+    for x, y in zip(got[1].groups, a.groups, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert got[2].dropped == "lost_frames" and got[2].groups is None
+    assert [(r.first_id, r.second_id) for r in store.slews(more)] == [(more[0], more[1])]
 
 
 def test_positions_filters(store: Store) -> None:

@@ -8,7 +8,11 @@ import httpx
 import numpy as np
 import pytest
 
+from recal.calibrate import build_models
+from recal.coefficients import CoefficientSet
+from recal.model import ParameterLayout
 from recal.session import simulate_session
+from recal.slews import in_accel_frame
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.cli.main import main
 from service.config import (
@@ -35,6 +39,13 @@ def test_demo_runs_the_whole_product(tmp_path, capsys):
     assert len(zs) == 12 and max(abs(z) for z in zs) < 3.5
     truth = json.loads((folder / "truth.json").read_text())
     assert truth["gyro"]["scale"][0] == pytest.approx(1.0, abs=1e-3)
+
+
+def _leaves(tree):
+    """The leaves of a section 5 layout (lists and name -> value maps), in order."""
+    if isinstance(tree, dict):
+        return [v for k in tree for v in _leaves(tree[k])]
+    return list(tree) if isinstance(tree, list) else [tree]
 
 
 @pytest.fixture()
@@ -80,6 +91,9 @@ def test_daemon_over_a_real_http_server(tmp_path, capture):
             service.ingest.flush()
             health = http.get("/health").json()
             assert health["status"] == "ok" and health["positions"] == 24
+            # the motion between the windows is stored with them (23 slews, none dropped)
+            part = health["service"]
+            assert part["slews"] == 23 and not any(part["slews_dropped"].values())
             assert http.post("/recalibrate").status_code == 401  # writes need the token
             r = http.post("/recalibrate", headers={"Authorization": f"Bearer {TOKEN}"})
             assert r.status_code == 202
@@ -93,6 +107,16 @@ def test_daemon_over_a_real_http_server(tmp_path, capture):
             sd = np.array(doc["document"]["uncertainty"]["gyro"]["bias"])
             err = np.array(coeffs["gyro"]["bias"]) - truth.values["gyro.bias"]
             assert np.all(np.abs(err) < 4 * sd)
+            # with the slews every gyro coefficient is estimated: none held at the prior
+            status = doc["document"]["status"]["gyro"]
+            assert all(v == "estimated" for v in _leaves(status)), status
+            # ... within 4 sigma of the truth, in the gauge the fit holds (accelerometer frame)
+            layout = ParameterLayout(build_models(("gyro", "accel"), (), (), 25.0))
+            want = in_accel_frame(truth.to_vector(layout), layout)
+            got = CoefficientSet.from_json_dict(coeffs).to_vector(layout)
+            sdE = np.array(_leaves(doc["document"]["uncertainty"]["gyro"]["misalignment"]))
+            E = layout.term_slices()["gyro.misalignment"]
+            assert np.all(np.abs(got[E] - want[E]) < 4 * sdE)
             assert http.get(f"/coefficients/{version}").json()["version"] == version
             assert http.get("/coefficients/999").status_code == 404
             published = json.loads((tmp_path / "coefficients.json").read_text())
