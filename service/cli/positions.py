@@ -66,6 +66,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--output", required=True, metavar="POSITIONS.csv")
     p.add_argument(
+        "--report",
+        metavar="OUT.html",
+        help="write an HTML report: moving variance and signals against time, thresholds, the "
+        "windows found and the stretches rejected (written even when no window is found)",
+    )
+    p.add_argument(
         "--no-slews",
         dest="slews",
         action="store_false",
@@ -154,14 +160,25 @@ def run(args: argparse.Namespace) -> int:
     from service.cli.recording import open_recording
 
     out = Path(args.output)
-    if not (out.parent if str(out.parent) else Path(".")).is_dir():
-        raise RecalInputError(f"output folder {out.parent} does not exist")
+    report_path = getattr(args, "report", None)
+    for path in (out, *([Path(report_path)] if report_path else [])):
+        if not (path.parent if str(path.parent) else Path(".")).is_dir():
+            raise RecalInputError(f"output folder {path.parent} does not exist")
     recording = open_recording(args)
     floor = None
     if not _has_thresholds(args):
         floor = _learn_noise_floor(recording, args)
-    windows, report = _detect(recording, _config(args, recording, floor))
+    envelope = None
+    if report_path:
+        from recal.report_positions import RecordingEnvelope
+
+        envelope = RecordingEnvelope()  # bounded: a few thousand buckets, however long
+    windows, report = _detect(recording, _config(args, recording, floor), envelope)
+    if report_path:  # before the no-window error: the report shows why there is none
+        _write_report(Path(report_path), envelope, report, windows, recording, floor, args)
     if not windows:
+        if report_path:
+            print(f"recal positions: wrote the report to {report_path}", file=sys.stderr)
         rejected = ", ".join(f"{k} {v}" for k, v in report.rejected.items() if v) or "none"
         raise RecalInputError(
             f"no static window found in {report.frames} frames (rejected: {rejected}): check "
@@ -177,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
         f"{max(durations):.1f} s long) to {out}",
         file=sys.stderr,
     )
+    if report_path:
+        print(f"recal positions: wrote the report to {report_path}", file=sys.stderr)
     side = slews_path(out)
     if getattr(args, "slews", True) and len(windows) > 1 and recording.triads == ("gyro", "accel"):
         _write_slews(side, recording, windows, report.sample_rate_hz)
@@ -252,17 +271,46 @@ def _learn_noise_floor(recording, args: argparse.Namespace):
     return estimator.result()
 
 
-def _detect(recording, config):
-    """Pass 2: stream the recording through the incremental detector."""
+def _detect(recording, config, envelope=None):
+    """Pass 2: stream the recording through the incremental detector (and into the report's
+    envelope when one is given)."""
     from recal.static import StaticDetector
 
-    detector = StaticDetector(config)
+    detector = StaticDetector(config, on_traces=None if envelope is None else envelope.on_traces)
     windows = []
     with _ByteProgress(recording.total_bytes, "positions") as bar:
         for frames in blocks(recording.frames(bar.update), DETECTOR_BLOCK):
             windows += detector.feed(**frames)
         windows += detector.flush()
     return windows, detector.report
+
+
+def _write_report(path: Path, envelope, report, windows, recording, floor, args) -> None:
+    """The HTML report of the detection (recal.report_positions), atomically."""
+    from recal.report_positions import positions_html
+    from service.cli.common import atomic_write
+
+    names = " ".join(Path(p).name for p in args.inputs)
+    page = positions_html(
+        envelope,
+        report,
+        windows,
+        title=f"recal positions {names}",
+        triads=recording.triads,
+        units=_units(args.format),
+        noise_floor=floor,
+        notes=recording.notes(),
+    )
+    atomic_write(path, page)
+
+
+def _units(fmt: str) -> dict[str, str]:
+    """Input units of each triad as the recording gives them (see the module doc)."""
+    if fmt.startswith("kvh"):
+        return {"gyro": "deg/h", "accel": "g"}
+    if fmt == "xsens-text":
+        return {"gyro": "counts", "accel": "counts"}
+    return {"gyro": "output units", "accel": "output units"}
 
 
 def _write(out: Path, windows, triads: tuple[str, ...]) -> None:
