@@ -271,8 +271,12 @@ class Problem:
         f = x["accel"]  # (3, P, M)
         f1 = np.moveaxis(f[:, :, self.slews.first], 0, -1)
         f2 = np.moveaxis(f[:, :, self.slews.second], 0, -1)
+        zero = None
+        if not self.slew_earth_rate:  # a gyro blind to Earth rate: its bias wanders (slews.py)
+            g = self.positions.stack(("gyro_x", "gyro_y", "gyro_z"))
+            zero = 0.5 * (g[self.slews.first] + g[self.slews.second])
         return slew_residuals(
-            self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate
+            self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate, zero
         )
 
     def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:

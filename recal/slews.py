@@ -676,7 +676,11 @@ def _chain_components(w, x, y, z):
 
 
 def slew_rotations(
-    slews: Slews, gain: np.ndarray, A: np.ndarray, offset: np.ndarray
+    slews: Slews,
+    gain: np.ndarray,
+    A: np.ndarray,
+    offset: np.ndarray,
+    zero_rate: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Integrated rotation and rest rate per parameter vector and slew.
 
@@ -685,6 +689,12 @@ def slew_rotations(
     quaternions (P, S, 4) of the rotation from the body frame at the end of window ``first`` to
     the one at the start of window ``second`` (C(q) maps the latter's coordinates to the
     former's), and the calibrated rest rate of window ``first`` (P, S, 3) in rad/s.
+
+    ``zero_rate`` (S, 3), output units: the output taken as zero rate over each slew instead of
+    the model's bias (for a gyro blind to Earth rate, whose bias wanders between windows by more
+    than the model's constant bias can follow: the mean output of the slew's two windows is the
+    best estimate of the bias during it). The increments are then shifted exactly to that
+    reference (``c = -M rho``, rho = (zero_rate - reference) dt) and the rest rate is zero.
     Component-major inside: three (P x S) batches of 3x3 by 3xG matrix products, then
     elementwise work on (P, S, G) arrays.
     """
@@ -693,8 +703,13 @@ def slew_rotations(
     Mm = DEG_H_TO_RAD_S * Ainv / gain[:, :, None, :]  # (P, S|1, 3, 3): column j / gain_j
     rest = (Ainv @ (slews.reference[None] / gain - offset)[..., None])[..., 0]
     rest = DEG_H_TO_RAD_S * np.broadcast_to(rest, (P, S, 3))  # (P, S, 3) rad/s
-    c = (rest * slews.period_s)[..., None]  # per-sample rest increment, rad, (P, S, 3, 1)
     Mb = np.broadcast_to(Mm, (P, S, 3, 3))
+    if zero_rate is None:
+        c = (rest * slews.period_s)[..., None]  # per-sample rest increment, rad, (P, S, 3, 1)
+    else:
+        rho = (np.asarray(zero_rate, float) - slews.reference) * slews.period_s  # (S, 3)
+        c = -(Mb @ rho[None, :, :, None])  # (P, S, 3, 1)
+        rest = np.zeros_like(rest)
     phi = Mb @ slews.sums.transpose(0, 2, 1)  # (P, S, 3, G)
     phi += slews.group_samples[None, :, None, :] * c
     mw = Mb @ slews.weighted.transpose(0, 2, 1)
@@ -727,6 +742,7 @@ def slew_residuals(
     f_second: np.ndarray,
     basis: np.ndarray,
     earth_rate: bool,
+    zero_rate: np.ndarray | None = None,
 ) -> np.ndarray:
     """Slew residuals (P, 2 S), rad: the gravity direction the integrated gyro predicts at
     window ``second`` against the measured one, ``u_meas x u_pred`` on ``basis`` (S, 2, 3).
@@ -735,7 +751,8 @@ def slew_residuals(
     ``earth_rate`` the Earth's rotation over the slew is taken out, with the calibrated rest rate
     of window ``first`` as the Earth rate in its body frame (a gyro that sees Earth rate):
     u_(k+1) = C^T exp([w_k T]x) u_k. Without it, that rotation (Omega cos(lat) T, about north)
-    is left in the noise budget (:func:`slew_sigma`).
+    is left in the noise budget (:func:`slew_sigma`); ``zero_rate`` is then the output taken as
+    zero rate over each slew (:func:`slew_rotations`).
     Evaluated in batches over P so the temporaries stay bounded.
     """
     P, S = A.shape[0], len(slews)
@@ -743,7 +760,7 @@ def slew_residuals(
     step = max(1, _BATCH_ELEMENTS // max(S * slews.sums.shape[1], 1))
     for a in range(0, P, step):  # a loop over batches of parameter vectors, not samples
         b = min(a + step, P)
-        q, rest = slew_rotations(slews, gain[a:b], A[a:b], offset[a:b])
+        q, rest = slew_rotations(slews, gain[a:b], A[a:b], offset[a:b], zero_rate)
         u1 = f_first[a:b] / np.linalg.norm(f_first[a:b], axis=-1, keepdims=True)
         if earth_rate:
             u1 = rodrigues(rest * slews.duration_s[None, :, None], u1)
@@ -793,6 +810,11 @@ def slew_sigma(
     else:
         horizontal = OMEGA_IE_RAD_S * math.cos(math.radians(latitude_deg)) * T
         var2 += (horizontal**2 / 2.0)[:, None]
+        if gyro_sem_in is not None:  # the zero-rate reference: the mean of the two windows
+            ref = 0.25 * (
+                np.mean(gyro_sem_in[i] ** 2, axis=1) + np.mean(gyro_sem_in[j] ** 2, axis=1)
+            )
+            var2 += ((DEG_H_TO_RAD_S * T) ** 2 * ref)[:, None]
     return np.sqrt(var2).reshape(-1)
 
 
