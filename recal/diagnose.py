@@ -66,6 +66,13 @@ class Candidate:
     parameters: dict[str, float] = field(default_factory=dict)
     uncertainty: dict[str, float] = field(default_factory=dict)
     similar_to: list[str] = field(default_factory=list)
+    #: Per-position raw residual of each invariant with the effect added (for the report's
+    #: charts; not in the JSON).
+    residuals_after: dict[str, np.ndarray] = field(default_factory=dict)
+    #: What drives the effect, per position: its context columns (temperature_c,
+    #: temperature_rate_c_per_h, time_h, specific_force_g (M, 3)); for an effect of the input
+    #: itself (no context), the specific force when the accel is calibrated. Not in the JSON.
+    drivers: dict[str, np.ndarray] = field(default_factory=dict)
 
     def to_json_dict(self) -> dict[str, Any]:
         def num(v: float) -> float | None:
@@ -247,6 +254,11 @@ def _score(
     cand.explained_fraction = float(np.clip(gain / excess, 0.0, 1.0)) if excess > 0 else 0.0
     raw = fit.problem.raw_residuals(fit.theta[None])
     cand.rms_after = {k: float(np.sqrt(np.mean(v[0] ** 2))) for k, v in raw.items()}
+    cand.residuals_after = {k: v[0] for k, v in raw.items()}
+    ctx = fit.problem.ctx
+    cand.drivers = {k: np.asarray(ctx[k], dtype=float) for k in sorted(term.needs) if k in ctx}
+    if not cand.drivers and "accel" in fit.problem.sensors:
+        cand.drivers = {"specific_force_g": fit.problem._specific_force(fit.theta)}
     sl = fit.problem.layout.term_slices()[term.name]
     cand.parameters = dict(zip(term.params, map(float, fit.theta[sl]), strict=True))
     typical = fit.problem.layout.typical(fit.theta)

@@ -114,7 +114,9 @@ def residual_bars(
     if n <= 40:
         ax.set_xticks(x if n <= 20 else x[::2])
     ax.grid(axis="y", lw=0.3, alpha=0.6)
-    ax.legend(fontsize=8, loc="upper right", ncols=3)
+    # Above the axes, right-aligned: never over a bar (a title goes on the left).
+    ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=3, frameon=False,
+              borderaxespad=0.1)  # fmt: skip
 
 
 def time_unit(duration_s: float) -> tuple[float, str]:

@@ -1,7 +1,8 @@
-"""HTML reports of a calibration or a diagnosis: tables and inline SVG plots, as strings.
+"""HTML reports of a calibration or a diagnosis: tables and inline SVG charts, as strings.
 
-No plotting library is needed: the charts are plain SVG, so the report opens in any browser on
-the vessel's computer and can be attached to an e-mail as one file. The caller writes it.
+The charts are drawn with matplotlib (through :mod:`recal.plots`; matplotlib is imported only when a chart is drawn)
+and embedded as SVG text, so the report is one self-contained file that opens offline in any
+browser on the vessel's computer and can be attached to an e-mail. The caller writes it.
 """
 
 from __future__ import annotations
@@ -12,58 +13,102 @@ from collections.abc import Sequence
 import numpy as np
 
 from recal.calibrate import CalibrationResult
-from recal.diagnose import Diagnosis
+from recal.diagnose import Candidate, Diagnosis
+from recal.plots import AFTER, BEFORE, html_page
 
-_W, _H, _PAD = 720, 220, 40
-_STYLE = (
-    "body{font-family:sans-serif;max-width:900px;margin:2em auto;color:#222}"
-    "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}"
-    "th{background:#f4f4f4}"
-)
+_TINY = 1e-300
 
 
-def _page(title: str, body: str) -> str:
-    """A complete, self-contained HTML page (no external assets)."""
-    t = html.escape(title)
-    return (
-        f'<!doctype html>\n<html><head><meta charset="utf-8"><title>{t}</title>'
-        f"<style>{_STYLE}</style></head><body>\n<h1>{t}</h1>\n{body}</body></html>\n"
-    )
+def _sigma(problem, name: str) -> np.ndarray | None:
+    """Per-residual 1-sigma of an invariant, or None when the noise is not known."""
+    return np.asarray(problem.sigma[name], dtype=float) if problem.noise_known_for(name) else None
 
 
-def _bars(series: Sequence[tuple[str, np.ndarray, str]], floor: float | None, unit: str) -> str:
-    """Grouped bars per position for several residual series, with a +-noise-floor band."""
-    n = len(series[0][1])
-    top = max(float(np.max(np.abs(s))) for _, s, _ in series)
-    top = max(top, floor or 0.0, 1e-300) * 1.1
-    x0, width = _PAD + 20, _W - _PAD - 30
-    mid = _H / 2
-    scale = (_H / 2 - 20) / top
-    slot = width / n
-    bw = slot * 0.8 / len(series)
-    parts = [f'<svg width="{_W}" height="{_H}" xmlns="http://www.w3.org/2000/svg" '
-             'font-family="sans-serif" font-size="11">']  # fmt: skip
-    if floor:
-        h = floor * scale
-        parts.append(f'<rect x="{x0}" y="{mid - h:.1f}" width="{width}" height="{2 * h:.1f}" '
-                     'fill="#e8f0e8"><title>noise floor (1 sigma)</title></rect>')  # fmt: skip
-    parts.append(f'<line x1="{x0}" y1="{mid}" x2="{x0 + width}" y2="{mid}" stroke="#888"/>')
-    for k, (label, values, colour) in enumerate(series):
-        for i, v in enumerate(values):
-            h = abs(v) * scale
-            y = mid - h if v > 0 else mid
-            x = x0 + i * slot + slot * 0.1 + k * bw
-            parts.append(f'<rect x="{x:.1f}" y="{y:.1f}" width="{bw:.1f}" height="{h:.1f}" '
-                         f'fill="{colour}"><title>{html.escape(label)} position {i}: '
-                         f"{v:.4g} {html.escape(unit)}</title></rect>")  # fmt: skip
-        parts.append(f'<text x="{x0 + 10 + 160 * k}" y="14" fill="{colour}">'
-                     f"&#9632; {html.escape(label)}</text>")  # fmt: skip
-    parts.append(f'<text x="4" y="{mid - _H / 2 + 30}">+{top:.3g}</text>')
-    parts.append(f'<text x="4" y="{mid + _H / 2 - 24}">-{top:.3g}</text>')
-    parts.append(f'<text x="{x0}" y="{_H - 4}">position (window) index; unit {html.escape(unit)}'
-                 "; green band: noise floor</text>")  # fmt: skip
-    parts.append("</svg>")
-    return "".join(parts)
+def _xlabel(name: str) -> str:
+    return "slew residual number (2 per slew)" if name == "slew" else "position number"
+
+
+def _residual_chart(
+    name: str,
+    series: Sequence[tuple[str, np.ndarray, str]],
+    sigma: np.ndarray | None,
+    unit: str,
+) -> str:
+    """Bars per position of each residual series over the shaded noise band; when the first
+    series' scale hides the last one, a second panel shows the last one zoomed."""
+    from recal.plots import figure_svg, new_figure, residual_bars
+
+    first = float(np.max(np.abs(series[0][1]), initial=0.0))
+    last = float(np.max(np.abs(series[-1][1]), initial=0.0))
+    floor = 0.0 if sigma is None else float(np.max(sigma, initial=0.0))
+    zoom = len(series) > 1 and first > 4.0 * max(last, floor, _TINY)
+    fig, axes = new_figure(2 if zoom else 1, 1, size_in=(9.0, 2.9 * (2 if zoom else 1)))
+    residual_bars(axes[0], list(series), sigma, unit, _xlabel(name))
+    axes[0].set_title(f"{name} residual", fontsize=10, loc="left")
+    if zoom:
+        residual_bars(axes[1], list(series[-1:]), sigma, unit, _xlabel(name))
+        axes[1].set_title(f"{name}: {series[-1][0]}, zoomed", fontsize=10, loc="left")
+    return figure_svg(fig)
+
+
+#: Axis label of each driving variable (context column) of the catalogue effects.
+_DRIVER_LABELS = {
+    "temperature_c": "temperature [degC]",
+    "temperature_rate_c_per_h": "temperature rate [degC/h]",
+    "time_h": "session time (window middle) [h]",
+}
+
+
+def _driver_columns(drivers: dict[str, np.ndarray], m: int) -> list[tuple[str, np.ndarray]]:
+    """(axis label, (M,) values) per driving variable; a (M, 3) vector gives three columns."""
+    cols = []
+    for key, v in drivers.items():
+        v = np.asarray(v, dtype=float)
+        if v.shape == (m,):
+            cols.append((_DRIVER_LABELS.get(key, key), v))
+        elif v.shape == (m, 3):
+            name = "specific force" if key == "specific_force_g" else key
+            unit = " [g]" if key == "specific_force_g" else ""
+            cols += [(f"{name} {ax}{unit}", v[:, j]) for j, ax in enumerate("xyz")]
+    return cols
+
+
+def _driver_chart(c: Candidate, invariants: list[dict], problem) -> str:
+    """Residual against the candidate's driving variable(s), current model and with it added;
+    one row per invariant of the candidate's sensor (and the dot product)."""
+    from recal.plots import figure_svg, new_figure
+
+    if not (c.identifiable and c.residuals_after and c.drivers):
+        return ""
+    sensor = c.effect.split(".", 1)[0]
+    rows = [inv for inv in invariants
+            if inv["name"] in (f"{sensor}_norm", "dot") and inv["name"] in c.residuals_after]  # fmt: skip
+    m = len(rows[0]["per_position"]) if rows else 0
+    cols = _driver_columns(c.drivers, m)
+    if not rows or not cols:
+        return ""
+    fig, axes = new_figure(len(rows), len(cols), size_in=(9.0, 2.7 * len(rows)))
+    for i, inv in enumerate(rows):
+        name, unit = inv["name"], inv["unit"]
+        before = np.asarray(inv["per_position"], dtype=float)
+        after = np.asarray(c.residuals_after[name], dtype=float)
+        sigma = _sigma(problem, name)
+        floor = None if sigma is None else float(np.sqrt(np.mean(sigma**2)))
+        for j, (label, x) in enumerate(cols):
+            ax = axes[i * len(cols) + j]
+            if floor:
+                ax.axhspan(-floor, floor, color="#27ae60", alpha=0.18, lw=0,
+                           label="noise floor (±1σ)")  # fmt: skip
+            ax.axhline(0.0, color="#555", lw=0.6)
+            ax.plot(x, before, "o", ms=4, color=BEFORE, mfc="none", label="current model")
+            ax.plot(x, after, "x", ms=4, color=AFTER, label=f"with {c.effect}")
+            ax.set_xlabel(label)
+            if j == 0:
+                ax.set_ylabel(f"{name} residual\n[{unit}]")
+            ax.grid(lw=0.3, alpha=0.6)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncols=3,
+               fontsize=8, frameon=False)  # fmt: skip
+    return figure_svg(fig)
 
 
 def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
@@ -94,18 +139,33 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
             f"<td>{note}</td></tr>"
         )
     plots = []
+    problem = d.baseline.problem
     baseline = {inv["name"]: np.array(inv["per_position"]) for inv in doc["invariants"]}
     for inv in doc["invariants"]:
         name = inv["name"]
-        series = [("current model", baseline[name], "#c0392b")]
+        series = [("current model", baseline[name], BEFORE)]
         if d.suggested_effects:
             series.append(("with " + ", ".join(d.suggested_effects),
-                           d.final_residuals[name], "#2471a3"))  # fmt: skip
-        plots.append(f"<h3>{esc(name)} residual per position</h3>"
-                     + _bars(series, inv["noise_floor"], inv["unit"]))  # fmt: skip
-        if d.suggested_effects:  # zoomed: does the corrected model reach the noise band?
-            plots.append(f"<h3>{esc(name)} with the suggested effects, zoomed</h3>"
-                         + _bars(series[1:], inv["noise_floor"], inv["unit"]))  # fmt: skip
+                           d.final_residuals[name], AFTER))  # fmt: skip
+        chart = _residual_chart(name, series, _sigma(problem, name), inv["unit"])
+        plots.append(f"<h3>{esc(name)} residual per position</h3>{chart}")
+    drivers = []
+    for c in d.candidates:
+        chart = _driver_chart(c, doc["invariants"], problem)
+        if chart:
+            verdict = "suggested" if c.effect in d.suggested_effects else (
+                "significant" if c.significant else "not significant")  # fmt: skip
+            drivers.append(f"<h3>{esc(c.effect)}: delta BIC {c.delta_bic:.1f}, p {c.p_value:.2g}"
+                           f" ({verdict})</h3>{chart}")  # fmt: skip
+    driver_part = (
+        "<h2>Residual against what drives each candidate</h2><p>Each identifiable candidate: "
+        "the residual of the current model (circles) and with the candidate added (crosses) "
+        "against the variable the effect depends on. A trend the candidate removes is why it "
+        "is suggested; a cloud without a trend is noise it cannot explain. Shaded: the noise "
+        "floor (&plusmn;1&sigma;, RMS over the positions).</p>" + "".join(drivers)
+        if drivers
+        else ""
+    )
     suggestion = (
         "Add: <b>"
         + esc(", ".join(d.suggested_effects))
@@ -116,7 +176,7 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         if d.suggested_effects
         else f"No candidate effect is significant; chi2_red {doc['chi2_red']:.3g}."
     )
-    return _page(
+    return html_page(
         title,
         f"""<p>{suggestion}</p>
 <h2>Invariants against their noise floor</h2>
@@ -128,38 +188,37 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
 above the noise floor that the effect removes.</p>
 <table><tr><th>effect</th><th>delta BIC</th><th>p</th><th>significant</th><th>explained</th>
 <th>physics</th><th>note</th></tr>{"".join(cands)}</table>
+<h2>Residual per position</h2>
+<p>Bars: each position's residual; shaded: the noise band (&plusmn;1&sigma; of each position).
+A zoomed panel follows when the current model's scale hides the corrected one.</p>
 {"".join(plots)}
+{driver_part}
 """,
     )
 
 
 def _singular_values(s: np.ndarray, names_kept: int, info_min: float) -> str:
     """Log-scale bars of the Jacobian's singular values with the observability threshold."""
+    from recal.plots import figure_svg, new_figure
+
     s = np.maximum(np.asarray(s, float), 1e-12)
-    lo, hi = np.log10(min(s.min(), info_min) / 3), np.log10(s.max() * 3)
-    x0, width = _PAD + 20, _W - _PAD - 30
-    slot = width / len(s)
-
-    def y(v: float) -> float:
-        return 20 + (_H - 40) * (hi - np.log10(v)) / (hi - lo)
-
-    parts = [f'<svg width="{_W}" height="{_H}" xmlns="http://www.w3.org/2000/svg" '
-             'font-family="sans-serif" font-size="11">']  # fmt: skip
-    for i, v in enumerate(s):
-        colour = "#2471a3" if i < names_kept else "#aaa"
-        top = y(v)
-        parts.append(f'<rect x="{x0 + i * slot + 1:.1f}" y="{top:.1f}" width="{slot - 2:.1f}" '
-                     f'height="{_H - 20 - top:.1f}" fill="{colour}"><title>s{i + 1} = {v:.3g}'
-                     "</title></rect>")  # fmt: skip
-    t = y(info_min)
-    parts.append(f'<line x1="{x0}" y1="{t:.1f}" x2="{x0 + width}" y2="{t:.1f}" '
-                 'stroke="#c0392b" stroke-dasharray="4 3"/>')  # fmt: skip
-    parts.append(f'<text x="{x0}" y="12" fill="#c0392b">- - - observable above the dashed '
-                 f"line (s = {info_min:g}: the data pin the direction down to its typical size);"
-                 " grey: held at the prior</text>")  # fmt: skip
-    parts.append(f'<text x="4" y="24">{10**hi:.2g}</text><text x="4" y="{_H - 22}">'
-                 f"{10**lo:.2g}</text></svg>")  # fmt: skip
-    return "".join(parts)
+    x = np.arange(1, s.size + 1)
+    fig, (ax,) = new_figure(size_in=(9.0, 3.0))
+    kept = x <= names_kept
+    ax.bar(x[kept], s[kept], color=AFTER, label="estimated direction")
+    if (~kept).any():
+        ax.bar(x[~kept], s[~kept], color="#aaa", label="held at the prior")
+    ax.axhline(info_min, color=BEFORE, ls="--", lw=1.2,
+               label=f"observable above s = {info_min:g}")  # fmt: skip
+    ax.set_yscale("log")
+    ax.set_ylim(min(s.min(), info_min) / 3, s.max() * 3)
+    ax.set_xlabel("direction number (largest singular value first)")
+    ax.set_ylabel("singular value\n(whitened, per typical change)")
+    if s.size <= 40:
+        ax.set_xticks(x if s.size <= 20 else x[::2])
+    ax.grid(axis="y", lw=0.3, alpha=0.6)
+    ax.legend(fontsize=8, loc="upper right")
+    return figure_svg(fig)
 
 
 def calibration_html(result: CalibrationResult, title: str = "recal calibrate") -> str:
@@ -186,13 +245,14 @@ def calibration_html(result: CalibrationResult, title: str = "recal calibrate") 
     after = result.problem.raw_residuals(result.theta[None])
     plots = []
     for n, summary in doc["residuals"].items():
-        series = [("prior", before[n][0], "#c0392b"), ("calibrated", after[n][0], "#2471a3")]
-        plots.append(f"<h3>{esc(n)} residual per position</h3>"
-                     + _bars(series, summary["noise_floor"], summary["unit"]))  # fmt: skip
+        series = [("prior", before[n][0], BEFORE), ("calibrated", after[n][0], AFTER)]
+        chart = _residual_chart(n, series, _sigma(result.problem, n), summary["unit"])
+        plots.append(f"<h3>{esc(n)} residual per {'slew' if n == 'slew' else 'position'}</h3>"
+                     + chart)  # fmt: skip
     obs = result.observability
     held = "".join(f"<li>{esc(h)}</li>" for h in obs.held_directions) or "<li>none</li>"
     notes = "".join(f"<li>{esc(n)}</li>" for n in result.notes)
-    return _page(
+    return html_page(
         title,
         f"""<p>{esc(result.method)}, {result.problem.M} positions, latitude {result.problem.latitude_deg:g}
 deg, chi2_red {result.chi2_red:.3g}. Observability: <b>{esc(obs.verdict)}</b> &mdash;
@@ -202,6 +262,10 @@ deg, chi2_red {result.chi2_red:.3g}. Observability: <b>{esc(obs.verdict)}</b> &m
 <h2>Coefficients</h2>
 <table><tr><th>coefficient</th><th>value</th><th>1-sigma</th><th>status</th><th>unit</th></tr>
 {"".join(rows)}</table>
+<h2>Residuals before and after</h2>
+<p>Bars: each position's residual with the prior and with the calibrated coefficients; shaded:
+the noise band (&plusmn;1&sigma; of each position). A zoomed panel follows when the prior's
+scale hides the calibrated residual.</p>
 {"".join(plots)}
 <h2>What the positions can show</h2>
 <p>Singular values of the whitened Jacobian, each parameter scaled by its typical change.

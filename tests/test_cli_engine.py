@@ -172,7 +172,8 @@ def test_calibrate_html_report(positions_csv, tmp_path, capsys):
     page = report.read_text()
     assert page.startswith("<!doctype html>") and page.count("<svg") == 4  # 3 invariants + SVD
     assert "gyro.misalignment.Exz" in page and "estimated (sum only)" in page
-    assert "http" not in page.replace("http://www.w3.org/2000/svg", "")  # self-contained
+    names = ("http://www.w3.org/2000/svg", "http://www.w3.org/1999/xlink")  # SVG namespaces
+    assert "http" not in page.replace(names[0], "").replace(names[1], "")  # self-contained
     assert (report.stat().st_mode & 0o777) != 0o600  # shareable, not mkstemp's private mode
 
 

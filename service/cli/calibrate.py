@@ -194,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
         from recal.report import calibration_html
 
         atomic_write(args.report, calibration_html(result, f"recal calibrate {args.positions}"))
+        print(f"recal calibrate: wrote the report to {args.report}", file=sys.stderr)
     if args.json:
         print_json(doc)
     else:

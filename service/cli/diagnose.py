@@ -42,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(positions, options, candidates)
     if args.report:
         atomic_write(args.report, diagnosis_html(result, f"recal diagnose {args.positions}"))
+        print(f"recal diagnose: wrote the report to {args.report}", file=sys.stderr)
     if args.json:
         print_json(result.to_json_dict())
     else:
