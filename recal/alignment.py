@@ -11,11 +11,13 @@ the attitude directly (analytic coarse alignment, NED)::
 What survives alignment (first order, psi-angle errors of :mod:`recal.ins_error`):
 
 * An accelerometer bias ``del_N, del_E`` (NED components) tilts the level by exactly the angle
-  that hides it: ``psi_E = -del_N / g``, ``psi_N = del_E / g``. In static navigation the tilt and
-  the bias then cancel: horizontal accel bias (and scale, misalignment, K2 at that attitude)
-  causes no position error while the IMU keeps its orientation. It shows again once the
-  vessel turns (the bias turns with the body, the tilt error does not), and it leaves the
-  attitude wrong by del / g (0.1 mg -> 20 arcsec).
+  that hides it at the start: ``psi_E = -del_N / g``, ``psi_N = del_E / g``. So no Schuler
+  oscillation follows (the unaligned INS would oscillate with amplitude R del / g). What stays:
+  an east accel bias together with its gyrocompass heading term (below) leaves psi parallel to
+  Earth's axis, which is stationary -- hidden for good. A north accel bias leaves a tilt about
+  east, which Earth rate turns (psi_N' = -Omega sin L psi_E): a 24 h error of order
+  R del_N / g (0.64 km per 100 ug). The tilt also leaves the attitude wrong by del / g
+  (0.1 mg -> 21 arcsec), and the bias shows again when the vessel turns.
 * An east gyro error ``eps_E`` turns the heading: ``psi_D = eps_E / (Omega cos L)`` (plus a
   term from the east-accelerometer tilt, ``-tan L * del_E / g``). The heading error makes the
   computed frame turn so that eps_E is balanced: no static position error from it either.

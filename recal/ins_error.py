@@ -62,6 +62,7 @@ from recal.navigation import (
     attitude_matrix,
     correction_models,
     radii_m,
+    schuler_period_s,
 )
 from recal.reference import G0_M_S2, OMEGA_IE_RAD_S, normal_gravity_g, normal_gravity_m_s2
 from recal.terms import MISALIGNMENT_NAMES
@@ -412,3 +413,26 @@ def describe_change(
         f"error from {p_old.final_nmi:.2f} to {u.final_nmi:.2f} nmi: the calibration "
         f"uncertainty of {new_name} alone allows {u.final_nmi:.2f} nmi (1 sigma)"
     )
+
+
+def schuler_amplitude_m(
+    time_s: np.ndarray, error_m: np.ndarray, latitude_deg: float, height_m: float = 0.0
+) -> float:
+    """Amplitude of the Schuler (84.4 min) oscillation in an error curve, m.
+
+    The curve minus its moving mean over one Schuler period (which removes that oscillation
+    and keeps the slower 24 h and Foucault terms) is the Schuler part; amplitude = sqrt(2) x
+    its RMS. NaN for a curve shorter than two periods.
+    """
+    t = np.asarray(time_s, float)
+    x = np.asarray(error_m, float)
+    if t.size < 3:
+        return float("nan")
+    dt = float(np.median(np.diff(t)))
+    n = max(1, round(schuler_period_s(latitude_deg, height_m) / dt))
+    if x.size < 2 * n:
+        return float("nan")
+    c = np.concatenate(([0.0], np.cumsum(x)))
+    mean = (c[n:] - c[:-n]) / n  # mean over [i, i + n)
+    part = x[n // 2 : n // 2 + mean.size] - mean
+    return float(math.sqrt(2.0) * np.sqrt(np.mean(part * part)))
