@@ -42,12 +42,13 @@ from recal.phases import paper_phases, whitened_phase
 from recal.positions import Positions
 from recal.problem import Problem
 from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
-from recal.slews import DEG_H_TO_RAD_S, Slews
+from recal.slews import DEG_H_TO_RAD_S, KnownRotations, Slews
 from recal.swarm import SwarmConfig
 from recal.terms import Term, catalogue_terms
 
 METHODS = ("lm",) + SWARM_METHODS
-UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad"}
+UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
+         "rotation": "rad"}  # fmt: skip
 #: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
 #: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
 #: so the FOG's 0.05 deg/h would call every bias such a gyro's windows can give "not seen".
@@ -83,6 +84,7 @@ class CalibrationOptions:
     indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
     t0_c: float = 25.0
     slews: Slews | None = None  # gyro increments between the windows (recal.slews), or None
+    known_rotations: KnownRotations | None = None  # commanded rotations of some slews
 
 
 @dataclass
@@ -132,6 +134,12 @@ class CalibrationResult:
                 "indicator_eq14_after": float(ind_after[n][0]),
                 "per_position": [float(v) for v in after[n][0]],
             }
+            if n == "rotation":
+                out[n]["per_rotation"] = out[n].pop("per_position")
+                out[n]["rotations"] = self.problem.n_of(n) // 3
+                if noise:
+                    w = after[n][0] / self.problem.sigma[n]
+                    out[n]["chi2_red"] = float(np.mean(w * w))
             if n == "slew":
                 out[n]["per_slew"] = out[n].pop("per_position")
                 out[n]["slews"] = self.problem.n_of(n) // 2
@@ -520,7 +528,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
             layout = ParameterLayout(models)
         return Problem.build(
             positions, models, opt.latitude_deg, opt.height_m, theta,
-            slews=slews, slew_earth_rate=not from_slews,
+            slews=slews, slew_earth_rate=not from_slews, known_rotations=opt.known_rotations,
         )  # fmt: skip
 
     problem = build(theta0)

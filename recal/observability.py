@@ -264,7 +264,9 @@ def analyze(
     rotations = rotation_span(layout)
     # with slews the relative rotation of the triads is seen, their common rotation is not: hold
     # it in the accelerometer's antisymmetric misalignment (rows of the forced-held columns)
-    forced = accel_rotation_span(layout) if "slew" in problem.invariant_names else np.zeros((D, 0))
+    # (known rotations, an outside reference, show it: nothing is forced then)
+    relative_only = "slew" in problem.invariant_names and "rotation" not in problem.invariant_names
+    forced = accel_rotation_span(layout) if relative_only else np.zeros((D, 0))
     Q = np.zeros((R, 0))  # orthonormal residual-space span claimed so far
     basis_cols, null_cols, reasons, s_kept, s_held = [], [], [], [], []
     earlier: list[str] = []

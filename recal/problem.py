@@ -27,13 +27,22 @@ from recal.errors import RecalInputError
 from recal.model import Model, ParameterLayout
 from recal.positions import GYRO_STD_COLUMNS, Positions
 from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
-from recal.slews import Slews, horizontal_basis, slew_residuals, slew_sigma
+from recal.slews import (
+    KnownRotations,
+    Slews,
+    horizontal_basis,
+    rotation_residuals,
+    rotation_sigma,
+    slew_residuals,
+    slew_sigma,
+)
 from recal.terms import Term
 
 #: Residual sigma used before any noise information exists (positions without *_std or *_sem
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
 #: re-estimated from the residuals. Observability is never decided on it (only structural rank).
-PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01, "slew": 1e-3}
+PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01, "slew": 1e-3,
+                     "rotation": 1e-3}  # fmt: skip
 #: Positions.noise_source label -> sigma_source label of the invariants it feeds.
 COLUMN_SOURCES = {
     "sem columns": "sem columns",
@@ -46,9 +55,10 @@ INVARIANT_SENSORS = {
     "accel_norm": ("accel",),
     "dot": ("gyro", "accel"),
     "slew": ("gyro", "accel"),
+    "rotation": ("gyro",),
 }
 #: Invariants whose residual is linear in the estimated inputs (no squared form in eq. 14).
-_LINEAR = frozenset({"dot", "slew"})
+_LINEAR = frozenset({"dot", "slew", "rotation"})
 
 
 @dataclass(frozen=True)
@@ -86,6 +96,7 @@ class Problem:
     slews: Slews | None = None
     slew_earth_rate: bool = True
     slew_basis: np.ndarray | None = None
+    known_rotations: KnownRotations | None = None
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -99,6 +110,7 @@ class Problem:
         use_dot: bool = True,
         slews: Slews | None = None,
         slew_earth_rate: bool = True,
+        known_rotations: KnownRotations | None = None,
     ) -> Problem:
         """Check the columns the models need, build the context and the noise floors.
 
@@ -146,6 +158,12 @@ class Problem:
         if use_slews:
             f = prob._specific_force(theta)
             prob = replace(prob, slew_basis=horizontal_basis(f[slews.second]))
+            if known_rotations is not None:
+                on = np.isin(known_rotations.slew, slews.first)
+                if on.any():
+                    kr = KnownRotations(known_rotations.slew[on], known_rotations.rotvec[on],
+                                        known_rotations.sigma_rad[on])  # fmt: skip
+                    prob = replace(prob, known_rotations=kr)
         return prob.with_sigma(*prob.propagated_sigma(theta))
 
     def _specific_force(self, theta: np.ndarray) -> np.ndarray:
@@ -198,18 +216,25 @@ class Problem:
             names.append("dot")
         if self.slews is not None:
             names.append("slew")
+            if self.known_rotations is not None:
+                names.append("rotation")
         return tuple(names)
 
     def n_of(self, name: str) -> int:
-        """Residuals of invariant ``name``: one per position, two per slew."""
-        return 2 * len(self.slews) if name == "slew" and self.slews is not None else self.M
+        """Residuals of invariant ``name``: one per position, two per slew, three per known
+        rotation."""
+        if name == "slew" and self.slews is not None:
+            return 2 * len(self.slews)
+        if name == "rotation" and self.known_rotations is not None:
+            return 3 * len(self.known_rotations)
+        return self.M
 
     def reference(self, name: str) -> float:
         if name == "gyro_norm":
             return OMEGA_IE_DEG_H
         if name == "accel_norm":
             return self.gravity_g
-        if name == "slew":
+        if name in ("slew", "rotation"):
             return 0.0
         return dot_reference(self.latitude_deg, self.height_m)
 
@@ -247,6 +272,8 @@ class Problem:
         for name in self.invariant_names:
             if name == "slew":
                 out[name] = self._slew_values(theta, x)
+            elif name == "rotation":
+                out[name] = self._rotation_values(theta)
             elif name == "dot":
                 out[name] = np.einsum("ipm,ipm->pm", x["gyro"], x["accel"])
             else:
@@ -271,13 +298,31 @@ class Problem:
         f = x["accel"]  # (3, P, M)
         f1 = np.moveaxis(f[:, :, self.slews.first], 0, -1)
         f2 = np.moveaxis(f[:, :, self.slews.second], 0, -1)
-        zero = None
-        if not self.slew_earth_rate:  # a gyro blind to Earth rate: its bias wanders (slews.py)
-            g = self.positions.stack(("gyro_x", "gyro_y", "gyro_z"))
-            zero = 0.5 * (g[self.slews.first] + g[self.slews.second])
         return slew_residuals(
-            self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate, zero
+            self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate,
+            self._zero_rate,
+        )  # fmt: skip
+
+    @cached_property
+    def _zero_rate(self) -> np.ndarray | None:
+        """A gyro blind to Earth rate: the output taken as zero rate over each slew, the mean of
+        its two windows (its bias wanders between windows; :func:`recal.slews.slew_rotations`)."""
+        if self.slew_earth_rate or self.slews is None:
+            return None
+        g = self.positions.gyro
+        return 0.5 * (g[self.slews.first] + g[self.slews.second])
+
+    def _rotation_values(self, theta: np.ndarray) -> np.ndarray:
+        """Known-rotation residuals (P, 3 K), rad (:func:`recal.slews.rotation_residuals`)."""
+        assert self.slews is not None and self.known_rotations is not None
+        theta = np.atleast_2d(theta)
+        gain, A, offset, _ = self.model("gyro")._parts(
+            theta[:, self._slices["gyro"]], self._slew_ctx
         )
+        return rotation_residuals(
+            self.slews, self.known_rotations, gain, A, offset, self.slew_earth_rate,
+            self._zero_rate,
+        )  # fmt: skip
 
     def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units); the
@@ -358,14 +403,18 @@ class Problem:
         out, source = {}, {}
         for n in self.invariant_names:
             needed = INVARIANT_SENSORS[n]
-            slew_sd = self._slew_sigma(x, sd_in, gains) if n == "slew" else None
-            if any(sd_in[s] is None for s in needed) or (n == "slew" and slew_sd is None):
+            slew_sd = self._slew_sigma(x, sd_in, gains) if n in ("slew", "rotation") else None
+            if n == "rotation" and slew_sd is not None:
+                slew_sd = self._rotation_sigma(sd_in, gains)
+            if any(sd_in[s] is None for s in needed) or (
+                n in ("slew", "rotation") and slew_sd is None
+            ):
                 out[n] = np.full(self.n_of(n), PROVISIONAL_SIGMA[n])
                 source[n] = "provisional"
                 continue
             kinds = {kind[s] for s in needed}
             source[n] = kinds.pop() if len(kinds) == 1 else "sem and std columns"
-            if n == "slew":
+            if n in ("slew", "rotation"):
                 out[n] = slew_sd
                 continue
             if n == "dot":
@@ -377,6 +426,16 @@ class Problem:
                 var = np.sum(u**2 * sd_in[needed[0]] ** 2, axis=1)
             out[n] = np.sqrt(np.maximum(var, 1e-300))
         return out, source
+
+    def _rotation_sigma(
+        self, sd_in: dict[str, np.ndarray | None], gains: dict[str, np.ndarray]
+    ) -> np.ndarray:
+        """Known-rotation noise (3 K,), rad (:func:`recal.slews.rotation_sigma`)."""
+        assert self.slews is not None and self.known_rotations is not None
+        std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
+        return rotation_sigma(
+            self.slews, self.known_rotations, std_in, sd_in["gyro"], self.slew_earth_rate
+        )
 
     def _slew_sigma(
         self,

@@ -153,7 +153,12 @@ def simulate_session(
     # Slew profile, the same for every slew: u in [0, 1) over the slew's samples.
     u = np.arange(n_slew) / n_slew
     shape = 0.5 * (1.0 - np.cos(np.pi * u))  # theta / Theta
-    shape_rate = 0.5 * np.pi * np.sin(np.pi * u) * (rate_hz / n_slew)  # d(theta/Theta)/dt, 1/s
+    # each sample's turn rate is the mean over its period (the increment of the profile times
+    # the rate), not the rate at its start: the samples then carry exactly the angle Theta from
+    # one hold's orientation to the next (the point rate falls short by (pi / 2n)^2 / 3: 3 ppm
+    # of scale at 100 Hz over 5 s, which a fit with known rotations sees)
+    edges = 0.5 * (1.0 - np.cos(np.pi * np.arange(n_slew + 1) / n_slew))
+    shape_rate = np.diff(edges) * rate_hz  # d(theta/Theta)/dt averaged over each sample, 1/s
     for k in range(M):  # a loop over positions; every sample operation below is vectorised
         hold = slice(int(hold_first[k]), int(hold_last[k]) + 1)
         w_b, f_b = C_nb[k].T @ w_n, C_nb[k].T @ f_n

@@ -93,8 +93,10 @@ def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
         cfg_cls = solver_for(args.method)[1] if args.method != "lm" else SwarmConfig
         extra = {"cf_mode": "literal"} if args.paper and args.method == "nafsa" else {}
         swarm = cfg_cls(fish=args.fish, iterations=args.iterations, **extra)
+    slews = load_slews(args)
     return CalibrationOptions(
-        slews=load_slews(args),
+        slews=slews,
+        known_rotations=load_known_rotations(args, slews),
         sensor=args.sensor,
         method=args.method,
         mc_runs=args.mc,
@@ -137,6 +139,29 @@ def load_slews(args: argparse.Namespace):
     return slews
 
 
+def load_known_rotations(args: argparse.Namespace, slews):
+    """``--known-rotations FILE`` (recal.slews.KnownRotations), or None."""
+    path = getattr(args, "known_rotations", None)
+    if path is None:
+        return None
+    from recal.errors import RecalInputError
+    from recal.slews import KnownRotations
+    from service.cli.common import read_text
+
+    if slews is None:
+        raise RecalInputError(
+            "--known-rotations: no slews to attach them to (run `recal positions` without "
+            "--no-slews, and calibrate without --no-slews)"
+        )
+    import numpy as np
+
+    known = KnownRotations.from_csv_text(read_text(path, "known rotations file"), path)
+    on = int(np.isin(known.slew, slews.first).sum())
+    print(f"recal: {len(known)} known rotations from {path}, {on} on integrated slews",
+          file=sys.stderr)  # fmt: skip
+    return known
+
+
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "calibrate",
@@ -152,6 +177,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=None,
         help="use the slews kept by `recal positions` in POSITIONS.slews.npz (default: when "
         "that file exists); --slews without it is an error",
+    )
+    p.add_argument(
+        "--known-rotations",
+        metavar="FILE.csv",
+        help="commanded rotations of the slews (an indexing mechanism or fixture): CSV with "
+        "axis_x,axis_y,axis_z,angle_deg[,sigma_deg][,window], one row per slew in order (row k: "
+        "from window k to k+1), axis in the first window's sensor axes; the gyro frame and scale "
+        "are then tied to the case (docs/engine.md)",
     )
     p.add_argument(
         "-o",

@@ -75,17 +75,20 @@ def test_slews_turn_the_body_smoothly_about_one_axis(quiet_session):
     np.testing.assert_allclose(np.linalg.norm(f, axis=1), g, rtol=1e-12)  # a rotation, no lever arm
     w_rad_s = np.radians(w / 3600.0)
     # Kinematics of a navigation-fixed vector seen from the turning body: df/dt = -w x f
-    # (the Earth rate part of w is 7e-5 rad/s, far below the tolerance).
-    dfdt = (f[2:] - f[:-2]) / (2 * dt)
-    expected = -np.cross(w_rad_s[1:-1], f[1:-1])
+    # (the Earth rate part of w is 7e-5 rad/s, far below the tolerance). A sample's rate is the
+    # mean over its period, so it is checked at the middle of the period.
+    dfdt = (f[1:] - f[:-1]) / dt
+    expected = -np.cross(w_rad_s[:-1], 0.5 * (f[1:] + f[:-1]))
     assert np.abs(dfdt - expected).max() < 5e-3 * np.abs(expected).max()
     for k in range(s.n_holds - 1):
         slew = slice(s.hold_last[k] + 1, s.hold_first[k + 1])
         _, angle = axis_angle(s.orientations[k].T @ s.orientations[k + 1])
         turned = np.linalg.norm(w_rad_s[slew], axis=1).sum() * dt  # about a fixed axis
         assert turned == pytest.approx(angle, abs=1e-3)
-        # the rate is zero at both ends: no step into or out of the hold
-        assert np.linalg.norm(w[slew][0] - w[s.hold_last[k]]) < 1e-9
+        # the rate is near zero at both ends (a sample holds the mean over its period): no step
+        # into or out of the hold
+        peak = np.linalg.norm(w[slew], axis=1).max()
+        assert np.linalg.norm(w[slew][0] - w[s.hold_last[k]]) < 0.02 * peak
         peak_rad_s = angle * np.pi / (2 * 2.0)  # raised cosine over 2 s
         assert np.linalg.norm(w_rad_s[slew], axis=1).max() == pytest.approx(peak_rad_s, rel=1e-3)
         assert np.linalg.norm(w_rad_s[slew][-1]) < 0.02 * peak_rad_s  # sin(pi / 200)
