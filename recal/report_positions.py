@@ -45,6 +45,7 @@ _REASON_STYLE = {  # colour, hatch: told apart in print as well as on screen
 _AXIS_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c")
 _MAX_LABELLED_WINDOWS = 60  # more position numbers than this would overlap on the chart
 _MAX_LISTED_REJECTIONS = 200
+_MAX_SHADED_REJECTIONS = 300  # per reason; beyond, each is only a marker at the top
 
 
 class TraceEnvelope:
@@ -333,12 +334,11 @@ def _shade(ax, windows, stretches, scale: float, panel: int, numbered: bool) -> 
         if not picked:
             continue
         colour, hatch = _REASON_STYLE[reason]
-        ax.add_collection(
-            PolyCollection(rects(picked), transform=tr, facecolor=(colour, 0.08),
-                           edgecolor=(colour, 0.45), hatch=hatch, lw=0.4,
-                           gid=f"rejected-{reason}-{panel}"),
-            autolim=False,
-        )  # fmt: skip
+        if len(picked) <= _MAX_SHADED_REJECTIONS:  # more would merge into a wall: markers only
+            spans = PolyCollection(rects(picked), transform=tr, facecolor=(colour, 0.08),
+                                   edgecolor=(colour, 0.45), hatch=hatch, lw=0.4,
+                                   gid=f"rejected-{reason}-{panel}")  # fmt: skip
+            ax.add_collection(spans, autolim=False)
         mid = [0.5 * (a + b) for a, b in picked]
         ax.plot(mid, [0.96] * len(mid), transform=tr, ls="none", marker="v", ms=4, color=colour,
                 label=f"rejected: {reason.replace('_', ' ')} ({len(picked)})")  # fmt: skip
