@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from recal.calibrate import CalibrationOptions, CalibrationResult, build_models, calibrate
+from recal.calibrate import UNITS, CalibrationOptions, CalibrationResult, build_models, calibrate
 from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.model import ParameterLayout
@@ -112,25 +112,39 @@ class Diagnosis:
             "candidates": [c.to_json_dict() for c in self.candidates],
             "suggested_effects": self.suggested_effects,
             "baseline_effects": self.baseline_effects,
-            "chi2_red": self.chi2_red,
-            "chi2_red_with_suggested": self.final_chi2_red,
+            "chi2_red": _finite(self.chi2_red),
+            "chi2_red_with_suggested": _finite(self.final_chi2_red),
             "noise_known": self.baseline.problem.noise_known,
             "method": "LM fits with the baseline's residual weights; F-test and BIC per candidate",
             "alpha": ALPHA,
         }
 
 
+def _finite(v: float) -> float | None:
+    """JSON has no NaN: an undefined figure is null."""
+    return float(v) if np.isfinite(v) else None
+
+
 def _fit(base: CalibrationResult, opt: CalibrationOptions, effects: Sequence[str]) -> Fit:
     """Fit the model with ``effects`` on the baseline's positions, prior and residual weights."""
     positions = base.problem.positions
-    models = build_models(base.problem.sensors, effects, opt.plugin_terms, opt.t0_c)
+    fresh = build_models(base.problem.sensors, effects, opt.plugin_terms, opt.t0_c)
+    # the baseline's own terms (calibrate may have tuned them, e.g. the typical bias change of
+    # a gyro calibrated from slews), then the effects
+    models = tuple(
+        b.with_terms([t for t in m.terms if t.name not in {u.name for u in b.terms}])
+        for b, m in zip(base.problem.models, fresh, strict=True)
+    )
     layout = ParameterLayout(models)
     start = {n: base.theta[sl] for n, sl in base.layout.term_slices().items()}
     theta0 = np.concatenate(
         [np.asarray(start.get(t.name, t.neutral), float) for m in models for t in m.terms]
     )
-    problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0)
-    problem = problem.with_sigma(base.problem.sigma, base.problem.sigma_source)
+    b = base.problem  # the baseline's slews and known rotations, so every fit sees the same data
+    problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0,
+                            slews=b.slews, slew_earth_rate=b.slew_earth_rate,
+                            known_rotations=b.known_rotations)  # fmt: skip
+    problem = problem.with_sigma(b.sigma, b.sigma_source)
     typical = layout.typical(theta0)
     report = analyze(problem, theta0, typical)
     if report.verdict == "insufficient":
@@ -155,7 +169,7 @@ def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
                 "rms": rms,
                 "noise_floor": floor,
                 "ratio": rms / floor if floor else None,
-                "unit": {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g"}[n],
+                "unit": UNITS[n],
                 "worst_positions": [int(i) for i in worst],
                 "per_position": [float(v) for v in r],
             }

@@ -41,6 +41,11 @@ def test_xsens_gyro_is_calibrated_from_the_slews(shared_data, tmp_path, capsys):
     assert (
         slew["slews"] == 37 and slew["noise_floor"] > 0 and slew["rms_after"] < slew["rms_before"]
     )
+    # diagnose sees the same data: the slew invariant is among the ones it checks
+    assert main(["diagnose", str(out), "--latitude", str(XSENS_LATITUDE), "--json"]) == 0
+    diag = json.loads(capsys.readouterr().out)
+    slew_row = next(i for i in diag["invariants"] if i["name"] == "slew")
+    assert slew_row["unit"] == "rad" and slew_row["rms"] > slew_row["noise_floor"] > 0
     assert main([*cal, "--no-slews"]) == 0  # as before the slews: the gyro is skipped
     doc = json.loads(capsys.readouterr().out)
     assert doc["sensor"] == "accel" and "slew" not in doc["residuals"]

@@ -120,9 +120,7 @@ def load_slews(args: argparse.Namespace):
     from recal.slews import Slews
     from service.cli.positions import slews_path
 
-    if not hasattr(args, "slews"):  # diagnose: not yet (its report has no slew invariant)
-        return None
-    use = args.slews
+    use = getattr(args, "slews", None)  # diagnose: when the side file exists
     if use is False:
         return None
     path = slews_path(args.positions)
