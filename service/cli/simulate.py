@@ -35,6 +35,9 @@ DEFAULT_TEMP_SLOPE_C_PER_H = 2.0
 #: so shorter than the window-mean defaults (100 s windows, 30 s between them).
 CAPTURE_WINDOW_S = 20.0
 CAPTURE_SLEW_S = 5.0
+#: Sample rate of a simulated trajectory when not given: hours of samples are held in memory.
+TRAJECTORY_RATE_HZ = 100.0
+TRAJECTORIES = ("voyage", "static")
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -98,8 +101,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--rate",
         type=float,
-        default=DEFAULT_RATE_HZ,
-        help="sample rate, Hz; with --capture the device's data rate (default %(default)s)",
+        default=None,
+        help=f"sample rate, Hz; with --capture the device's data rate (default "
+        f"{DEFAULT_RATE_HZ:g}; {TRAJECTORY_RATE_HZ:g} with --trajectory)",
     )
     p.add_argument("--temp-start", type=float, default=DEFAULT_TEMP_START_C, help="degC")
     p.add_argument(
@@ -151,6 +155,27 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--garbage", type=int, default=0, metavar="N", help="runs of random bytes inserted"
     )
     c.add_argument("--drop", type=int, default=0, metavar="N", help="frames dropped entirely")
+    t = p.add_argument_group("navigation recording (recal navigate)")
+    t.add_argument(
+        "--trajectory",
+        choices=TRAJECTORIES,
+        help="simulate a vessel instead of a calibration session: 'voyage' moors still for "
+        "--moor s (to align), then sails legs with speed and heading changes and wave roll; "
+        "'static' stays at rest for --duration s. Written with --capture (KVH) or --recording "
+        "(csv, conventions section 9); --track writes the true trajectory",
+    )
+    t.add_argument("--recording", metavar="OUT.csv", help="write the samples as a CSV recording")
+    t.add_argument("--track", metavar="TRUTH.csv", help="write the true trajectory (for --truth)")
+    t.add_argument("--moor", type=float, default=900.0, metavar="S", help="voyage: still start, s")
+    t.add_argument("--duration", type=float, default=3600.0, metavar="S", help="static: length, s")
+    t.add_argument("--longitude", type=float, default=0.0, help="start longitude, deg")
+    t.add_argument(
+        "--attitude",
+        metavar="R,P,Y",
+        default="0,0,0",
+        help="static: roll,pitch,yaw in NED, deg; voyage: the IMU's roll,pitch in the hull and "
+        "the moored heading (default 0,0,0)",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -164,6 +189,12 @@ def run(args: argparse.Namespace) -> int:
     from recal.terms import catalogue_terms
     from service.cli.common import atomic_write, load_coefficients, parse_effects
 
+    if args.rate is None:
+        args.rate = TRAJECTORY_RATE_HZ if args.trajectory else DEFAULT_RATE_HZ
+    if args.trajectory:
+        return _run_trajectory(args)
+    if args.recording or args.track:
+        raise RecalInputError("--recording and --track need --trajectory voyage|static")
     catalogue = catalogue_terms()
     hidden = []
     for name in parse_effects(args.hidden):
@@ -298,3 +329,85 @@ def _write_capture(
         file=sys.stderr,
     )
     return session_positions(session, sensors)
+
+
+def _run_trajectory(args: argparse.Namespace) -> int:
+    """``--trajectory``: a vessel recording for ``recal navigate`` and its true track."""
+    import numpy as np
+
+    from recal.alignment import parse_attitude
+    from recal.errors import RecalInputError
+    from recal.simulate import NoiseSpec
+    from recal.terms import catalogue_terms
+    from recal.trajectory import VoyageSpec, simulate_voyage
+    from service.cli.common import atomic_write, load_coefficients
+
+    if args.capture is None and args.recording is None:
+        raise RecalInputError("--trajectory needs --capture OUT.bin or --recording OUT.csv")
+    if args.output or args.hidden or args.sensor != "both":
+        raise RecalInputError(
+            "--trajectory writes a recording: -o, --hidden, --sensor do not apply"
+        )
+    if args.rate <= 0 or args.arw < 0 or args.vrw < 0 or args.moor <= 0 or args.duration <= 0:
+        raise RecalInputError("--rate, --moor, --duration must be positive, --arw, --vrw >= 0")
+    for out in (args.capture, args.recording, args.track, args.truth_out):
+        folder = Path(out).parent if out is not None else None
+        if folder is not None and str(folder) and not folder.is_dir():
+            raise RecalInputError(f"output folder {folder} does not exist")
+    roll, pitch, yaw = parse_attitude(args.attitude)
+    if args.trajectory == "static":
+        spec = VoyageSpec.static(args.duration, (roll, pitch, yaw))
+    else:
+        spec = VoyageSpec(moor_s=args.moor, heading0_deg=yaw, mount_rpy_deg=(roll, pitch, 0.0))
+    from service.capture_sim import kvh_like_truth
+
+    catalogue = catalogue_terms()
+    base = kvh_like_truth(np.random.default_rng(args.seed))
+    truth = load_coefficients(args.truth, catalogue) if args.truth else base.copy()
+    for name, v in base.values.items():
+        truth.values.setdefault(name, v)
+    noise = NoiseSpec(args.arw, args.vrw)
+    voyage = simulate_voyage(
+        truth, spec, args.latitude, args.longitude, args.height, args.rate, noise,
+        args.temp_start, args.seed,
+    )  # fmt: skip
+    s = voyage.session
+    if args.capture:
+        from drivers import DecoderConfig
+        from service.capture_sim import session_to_kvh
+
+        data, info = session_to_kvh(s, args.capture_format, DecoderConfig(rate_hz=args.rate))
+        atomic_write(args.capture, data)
+    if args.recording:
+        table = np.column_stack([s.time_s, s.gyro_out, s.accel_out, s.temperature_c])
+        atomic_write(args.recording, _csv(table, RECORDING_COLUMNS, "%.10g"))
+    if args.track:
+        cols = voyage.truth_columns()
+        every = max(1, round(args.rate / 10.0))  # 10 Hz is plenty for interpolation
+        table = np.column_stack([c[::every] for c in cols.values()])
+        atomic_write(args.track, _csv(table, tuple(cols), "%.12g"))
+    if args.truth_out:
+        atomic_write(args.truth_out, json.dumps(truth.to_json_dict(catalogue), indent=2) + "\n")
+    where = ", ".join(p for p in (args.capture, args.recording) if p)
+    print(
+        f"recal simulate: wrote a {spec.duration_s / 3600:.2f} h {args.trajectory} at "
+        f"{args.rate:g} Hz ({len(s)} samples) to {where}"
+        + (f"; true track to {args.track}" if args.track else ""),
+        file=sys.stderr,
+    )
+    return 0
+
+
+RECORDING_COLUMNS = (
+    "time_s", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z", "temperature_c",
+)  # fmt: skip
+
+
+def _csv(table, names: tuple[str, ...], fmt: str) -> str:
+    import io
+
+    import numpy as np
+
+    buf = io.StringIO()
+    np.savetxt(buf, table, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    return buf.getvalue()
