@@ -148,7 +148,8 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
             series.append(("with " + ", ".join(d.suggested_effects),
                            d.final_residuals[name], AFTER))  # fmt: skip
         chart = _residual_chart(name, series, _sigma(problem, name), inv["unit"])
-        plots.append(f"<h3>{esc(name)} residual per position</h3>{chart}")
+        per = "slew" if name == "slew" else "position"
+        plots.append(f"<h3>{esc(name)} residual per {per}</h3>{chart}")
     drivers = []
     for c in d.candidates:
         chart = _driver_chart(c, doc["invariants"], problem)
@@ -164,7 +165,8 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         "is suggested; a cloud without a trend is noise it cannot explain. Shaded: the noise "
         "floor (&plusmn;1&sigma;, RMS over the positions).</p>" + "".join(drivers)
         if drivers
-        else ""
+        else "<p>No candidate effect can be shown by these positions (see the notes above): "
+        "there is no residual to plot against what would drive it.</p>"
     )
     suggestion = (
         "Add: <b>"
