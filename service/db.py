@@ -41,8 +41,10 @@ from sqlalchemy.pool import StaticPool
 
 from recal.positions import CANONICAL_ORDER, Positions
 
-#: Schema version this code writes; a database with a newer one is refused.
-SCHEMA_VERSION = 1
+#: Schema version this code writes, kept by the migrations (service/migrations: revision 0002
+#: records 2); a database with a newer one is refused, and so is one at an Alembic revision
+#: this code does not know.
+SCHEMA_VERSION = 2
 #: Positions columns stored as real columns (conventions section 4, schema version 1); others,
 #: the optional ``*_sem`` columns included, go to ``extra``.
 POSITION_COLUMNS: tuple[str, ...] = tuple(c for c in CANONICAL_ORDER if not c.endswith("_sem"))
@@ -243,8 +245,8 @@ def _one_line(exc: BaseException) -> str:
 class Store:
     """Repository over one database URL (``sqlite:///file.db`` or ``postgresql+psycopg://...``).
 
-    Opening connects once and checks the schema version; :meth:`create_schema` creates the
-    tables. Database failures surface as :class:`StoreError`.
+    Opening connects once and checks the schema version; :meth:`create_schema` creates or
+    upgrades the tables (service/migrations). Database failures surface as :class:`StoreError`.
     """
 
     def __init__(self, url: str, *, connect_timeout_s: float = 5.0) -> None:
@@ -316,27 +318,61 @@ class Store:
     def _check_schema_version(self) -> None:
         try:
             with self._lock, self._engine.connect() as conn:
-                if not inspect(conn).has_table(SchemaVersionRow.__tablename__):
-                    return
-                found = conn.execute(select(func.max(SchemaVersionRow.version))).scalar()
+                found, revisions = _recorded_schema(conn)
         except SQLAlchemyError as exc:
             raise StoreError(f"cannot open database {self.url}: {_one_line(exc)}") from None
-        _require_known(found, self.url)
+        _require_known(found, revisions, self.url)
 
     def create_schema(self) -> None:
-        """Create missing tables and record the schema version (idempotent)."""
-        with self._tx(write=True) as s:
-            if self.dialect == "postgresql":  # two processes starting at once: one creates
-                s.execute(text("SELECT pg_advisory_xact_lock(7310599)"))
-            Base.metadata.create_all(s.connection())
-            found = s.scalar(select(func.max(SchemaVersionRow.version)))
-            _require_known(found, self.url)
-            if found is None:
-                s.add(SchemaVersionRow(version=SCHEMA_VERSION))
+        """Bring the schema to this code's version with the migrations (idempotent).
+
+        An empty database runs them all; one made by the release before migrations (an integer
+        ``schema_version``, no ``alembic_version``) is stamped with the revision it matches,
+        then upgraded; a migrated one is upgraded to the head (nothing to do when current).
+        Everything runs in one transaction; a newer database is refused.
+        """
+        from alembic import command
+        from alembic.util import CommandError
+
+        from service.migrations import LEGACY_REVISIONS, alembic_config
+
+        try:
+            with (
+                self._lock,
+                self._engine.execution_options(recal_write=True).connect() as conn,
+                conn.begin(),
+            ):
+                if self.dialect == "postgresql":  # two processes starting at once: one migrates
+                    conn.execute(text("SELECT pg_advisory_xact_lock(7310599)"))
+                found, revisions = _recorded_schema(conn)
+                _require_known(found, revisions, self.url)
+                cfg = alembic_config(conn)
+                if found is not None and not revisions:
+                    if found not in LEGACY_REVISIONS:
+                        raise StoreError(
+                            f"database {self.url} has schema version {found} but no migration "
+                            "record (table alembic_version): cannot upgrade it"
+                        )
+                    command.stamp(cfg, LEGACY_REVISIONS[found])
+                command.upgrade(cfg, "head")
+        except SQLAlchemyError as exc:
+            raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+        except CommandError as exc:
+            raise StoreError(f"database {self.url}: migration failed: {_one_line(exc)}") from exc
 
     def schema_version(self) -> int | None:
+        """The integer schema version recorded (None before :meth:`create_schema`)."""
         with self._tx() as s:
             return s.scalar(select(func.max(SchemaVersionRow.version)))
+
+    def schema_revision(self) -> str | None:
+        """The Alembic revision recorded (None for an empty or pre-migration database)."""
+        try:
+            with self._lock, self._engine.connect() as conn:
+                revisions = _recorded_schema(conn)[1]
+        except SQLAlchemyError as exc:
+            raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+        return ",".join(revisions) or None
 
     # ---- sessions and positions ---------------------------------------------------------
     def add_session(self, source: str, meta: Mapping[str, Any] | None = None) -> int:
@@ -633,12 +669,34 @@ def _slew_record(row: SlewRow) -> SlewRecord:
                       row.dropped)  # fmt: skip
 
 
-def _require_known(found: int | None, url: str) -> None:
+def _recorded_schema(conn: Any) -> tuple[int | None, list[str]]:
+    """The integer schema version and the Alembic revisions a database records."""
+    tables = set(inspect(conn).get_table_names())
+    found = None
+    if SchemaVersionRow.__tablename__ in tables:
+        found = conn.execute(select(func.max(SchemaVersionRow.version))).scalar()
+    revisions = []
+    if "alembic_version" in tables:
+        revisions = sorted(conn.execute(text("SELECT version_num FROM alembic_version")).scalars())
+    return found, revisions
+
+
+def _require_known(found: int | None, revisions: Sequence[str], url: str) -> None:
     if found is not None and found > SCHEMA_VERSION:
         raise StoreError(
             f"database {url} has schema version {found}, newer than this code knows "
             f"({SCHEMA_VERSION}): upgrade fog-recal"
         )
+    if revisions:
+        from service.migrations import head
+        from service.migrations import revisions as known
+
+        unknown = [r for r in revisions if r not in known()]
+        if unknown:
+            raise StoreError(
+                f"database {url} is at schema revision {', '.join(unknown)}, newer than this "
+                f"code knows ({head()}): upgrade fog-recal"
+            )
 
 
 def _finite_or_none(value: float) -> float | None:

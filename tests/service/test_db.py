@@ -18,6 +18,7 @@ from recal.errors import RecalInputError
 from recal.positions import Positions
 from recal.simulate import simulate_positions
 from recal.slews import ReducedSlew
+from service import migrations
 from service.db import SCHEMA_VERSION, CalibrationRecord, SchemaVersionRow, Store, StoreError
 
 
@@ -31,9 +32,11 @@ def simulated(n: int = 24, seed: int = 0, sensors: tuple[str, ...] = ("gyro", "a
 def test_schema_is_idempotent_and_versioned(store_url: str, store: Store) -> None:
     store.create_schema()
     assert store.schema_version() == SCHEMA_VERSION
-    reopened = Store(store_url)  # opening checks the recorded version
+    assert store.schema_revision() == migrations.head()
+    reopened = Store(store_url)  # opening checks the recorded version and revision
     reopened.create_schema()
     assert reopened.schema_version() == SCHEMA_VERSION
+    assert reopened.schema_revision() == migrations.head()
     reopened.close()
 
 
