@@ -219,7 +219,8 @@ def _singular_values(s: np.ndarray, names_kept: int, info_min: float) -> str:
     if s.size <= 40:
         ax.set_xticks(x if s.size <= 20 else x[::2])
     ax.grid(axis="y", lw=0.3, alpha=0.6)
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=3, frameon=False,
+              borderaxespad=0.1)  # fmt: skip
     return figure_svg(fig)
 
 
