@@ -367,12 +367,17 @@ class Store:
 
     def schema_revision(self) -> str | None:
         """The Alembic revision recorded (None for an empty or pre-migration database)."""
+        return self.recorded_schema()[1]
+
+    def recorded_schema(self) -> tuple[int | None, str | None]:
+        """The integer schema version and the Alembic revision recorded, None where absent
+        (both for an empty database; no revision for one made before migrations)."""
         try:
             with self._lock, self._engine.connect() as conn:
-                revisions = _recorded_schema(conn)[1]
+                found, revisions = _recorded_schema(conn)
         except SQLAlchemyError as exc:
             raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
-        return ",".join(revisions) or None
+        return found, ",".join(revisions) or None
 
     # ---- sessions and positions ---------------------------------------------------------
     def add_session(self, source: str, meta: Mapping[str, Any] | None = None) -> int:

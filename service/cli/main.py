@@ -28,6 +28,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "navigate",
     "record",
     "serve",
+    "db",
     "demo",
 )
 
@@ -54,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="recal",
         description="In-field recalibration of FOG gyro and accelerometer triads from static positions.",
     )
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on internal errors")
+    parser.add_argument("--version", action="version", version=f"recal {_version()}")
+    parser.add_argument("--debug", action="store_true", help=_DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
         try:
@@ -64,7 +66,33 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         module.register(sub)
+    for command in sub.choices.values():
+        _accept_debug(command)
     return parser
+
+
+_DEBUG_HELP = "show tracebacks on internal errors (also RECAL_DEBUG=1)"
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fog-recal")
+    except PackageNotFoundError:  # run from a checkout that was never installed
+        return "unknown"
+
+
+def _accept_debug(parser: argparse.ArgumentParser) -> None:
+    """Let ``--debug`` follow the subcommand too (``recal calibrate X.csv --debug``), in nested
+    subcommands as well. SUPPRESS: absent there, it leaves the top-level value alone."""
+    if "--debug" not in parser._option_string_actions:
+        parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                            help=_DEBUG_HELP)  # fmt: skip
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for nested in action.choices.values():
+                _accept_debug(nested)
 
 
 def main(argv: list[str] | None = None) -> int:
