@@ -15,6 +15,10 @@ Then: wall time of one full MCS-NAFSA run (100 runs x 50 fish x 60 iterations, a
 phases), objective evaluations per second of the batched problem, and the same objective
 evaluated point by point through scikit-opt's AFSA (benchmark-only dependency).
 Every number is printed with its target and PASS/MISS.
+
+"With slews": sample-level sessions (KVH-like captures: holds joined by slews, both triads, LM),
+calibrated without and with the slews; the gyro's antisymmetric misalignment is compared in the
+gauge a slew fit holds (the accelerometer frame, recal.slews.in_accel_frame).
 """
 
 from __future__ import annotations
@@ -147,6 +151,45 @@ def accuracy(datasets: int, mc: int, lm_datasets: int) -> dict:
     return table
 
 
+def slews_accuracy(seeds: int) -> dict:
+    """Per seed, without and with slews: gyro coefficients held, worst |error| / sigma over the
+    estimated gyro coefficients, antisymmetric gyro errors and their predicted 1-sigma."""
+    from recal.session import session_positions, session_slews, simulate_session
+    from recal.slews import in_accel_frame
+
+    out: dict[str, dict[str, list]] = {"without slews": {}, "with slews": {}}
+    for k in range(seeds):
+        truth = aged_truth(np.random.default_rng(2000 + k))
+        s = simulate_session(truth, "24", latitude_deg=45.0, seed=k, rate_hz=200, window_s=20,
+                             slew_s=5)  # fmt: skip
+        pos = session_positions(s)
+        for label, slews in (("without slews", None), ("with slews", session_slews(s))):
+            t0 = time.perf_counter()
+            r = calibrate(pos, CalibrationOptions(latitude_deg=45.0, slews=slews))
+            dt = time.perf_counter() - t0
+            tv = truth.to_vector(r.layout)
+            if slews is not None:
+                tv = in_accel_frame(tv, r.layout)
+            gyro = np.array([n.startswith("gyro.") for n in r.layout.names])
+            status = np.concatenate([r.status[n] for n in r.layout.term_slices()])
+            est = gyro & (status == "estimated")
+            sd = np.sqrt(np.clip(np.diag(r.covariance), 0, None))
+            A = np.zeros((3, r.layout.size))
+            names = r.layout.names
+            for i, (a, b) in enumerate(PAIRS):
+                A[i, names.index(f"gyro.misalignment.{a}")] = 1.0
+                A[i, names.index(f"gyro.misalignment.{b}")] = -1.0
+            row = out[label]
+            row.setdefault("held", []).append(int(gyro.sum() - est.sum()))
+            row.setdefault("worst", []).append(float(np.max(np.abs((r.theta - tv)[est] / sd[est]))))
+            row.setdefault("anti", []).append(A @ (r.theta - tv))
+            row.setdefault("anti_sd", []).append(np.sqrt(np.diag(A @ r.covariance @ A.T)))
+            row.setdefault("time", []).append(dt)
+        if sys.stderr.isatty():
+            print(f"  slews: {k + 1}/{seeds}", file=sys.stderr, end="\r")
+    return out
+
+
 def full_mcs_time() -> dict[str, float]:
     """One MCS-NAFSA as the seed runs it: 100 runs, 50 fish, 60 iterations, 3 gyro phases."""
     from recal.mcs import run_mcs
@@ -219,6 +262,7 @@ def main() -> None:
     ap.add_argument("--mc", type=int, default=10, help="MC runs per swarm calibration")
     ap.add_argument("--lm-datasets", type=int, default=400, help="data sets for LM (cheap)")
     ap.add_argument("--quick", action="store_true", help="5 data sets (a smoke run)")
+    ap.add_argument("--slew-seeds", type=int, default=20, help="sessions for the slews table")
     args = ap.parse_args()
     datasets = 5 if args.quick else args.datasets
     targets = {"LM": 1.1, "NAFSA default": 1.5}
@@ -252,6 +296,32 @@ def main() -> None:
                 + f" | {r['anti_rms']:.2e} | {r['time']:.3f} s | {r['evals']:.0f} | {tgt} "
                 f"| {verdict} |"
             )
+    seeds = 3 if args.quick else args.slew_seeds
+    sl = slews_accuracy(seeds)
+    print(f"\n## With slews (24 holds, 23 slews of 5 s, 200 Hz, LM, both triads, {seeds} seeds)\n")
+    print("| | without slews | with slews | target | verdict |\n|---|---|---|---|---|")
+    w, v = sl["without slews"], sl["with slews"]
+    held = (max(w["held"]), max(v["held"]))
+    print(f"| gyro coefficients held (of 12) | {held[0]} | {held[1]} | 0 with slews "
+          f"| {'PASS' if held[1] == 0 else 'MISS'} |")  # fmt: skip
+    worst = (max(w["worst"]), max(v["worst"]))
+    print(f"| worst gyro error / sigma (estimated ones) | {worst[0]:.2f} | {worst[1]:.2f} "
+          f"| <= 3 | {'PASS' if worst[1] <= 3 else 'MISS'} |")  # fmt: skip
+    rms = [float(np.sqrt(np.mean(np.square(x["anti"])))) for x in (w, v)]
+    pred = float(np.sqrt(np.mean(np.square(v["anti_sd"]))))
+    print(f"| antisymmetric gyro misalignment, RMS error (rad) | {rms[0]:.2e} (held) | "
+          f"{rms[1]:.2e} | - | - |")  # fmt: skip
+    ratio = rms[1] / pred
+    note = " (sigma conservative)" if ratio < 0.7 else ""
+    print(f"| ... predicted 1-sigma from the information (rad) | - | {pred:.2e} | "
+          f"measured / predicted <= 1.4 | {'PASS' if ratio <= 1.4 else 'MISS'} "
+          f"({ratio:.2f}{note}) |")  # fmt: skip
+    shrink, shrink_pred = rms[0] / rms[1], rms[0] / pred
+    print(f"| shrink factor of the antisymmetric error | - | measured {shrink:.0f}x, "
+          f"predicted {shrink_pred:.0f}x | >= 0.7 x predicted "
+          f"| {'PASS' if shrink >= 0.7 * shrink_pred else 'MISS'} |")  # fmt: skip
+    print(f"| time per calibration | {np.mean(w['time']):.2f} s | {np.mean(v['time']):.2f} s "
+          "| - | - |")  # fmt: skip
     times = full_mcs_time()
     print("\n## Speed\n")
     print(f"({os.cpu_count()} cores; batches of 50 runs, one forked worker per core)\n")
