@@ -72,18 +72,28 @@ class Section(BaseModel):
 
 
 class DeviceSettings(Section):
-    url: str = "loop://"
-    format: Literal["kvh-a", "kvh-b", "kvh-c"] = "kvh-a"
-    baudrate: int = Field(921600, gt=0)
-    rate_hz: float = Field(1000.0, gt=0, le=5000)
-    gyro_output: Literal["delta", "rate"] = "delta"
-    gyro_units: Literal["rad", "deg"] = "rad"
-    temperature_units: Literal["degC", "centi"] = "degC"
+    url: str = Field(
+        "loop://",
+        description="serial port (/dev/ttyUSB0), socket://host:port, or "
+        "replay:///path/capture.bin?speed=1 to replay a recording",
+    )
+    format: Literal["kvh-a", "kvh-b", "kvh-c"] = Field("kvh-a", description="frame format")
+    baudrate: int = Field(921600, gt=0, description="serial line speed (bit/s)")
+    rate_hz: float = Field(1000.0, gt=0, le=5000, description="frames per second the unit sends")
+    gyro_output: Literal["delta", "rate"] = Field(
+        "delta", description="delta: angle per sample (the device default); rate: per second"
+    )
+    gyro_units: Literal["rad", "deg"] = Field("rad", description="unit of the gyro output")
+    temperature_units: Literal["degC", "centi"] = Field(
+        "degC", description="centi: hundredths of a degC (the device's C_100)"
+    )
 
 
 class SiteSettings(Section):
-    latitude_deg: float = Field(45.0, ge=-90, le=90)
-    height_m: float = 0.0
+    latitude_deg: float = Field(
+        45.0, ge=-90, le=90, description="where the unit is: gravity and Earth rate follow it"
+    )
+    height_m: float = Field(0.0, description="height above the WGS-84 ellipsoid (m)")
 
 
 class DetectorSettings(Section):
@@ -92,50 +102,100 @@ class DetectorSettings(Section):
     (reused after a restart: the unit may be moving then), an initial still period
     (init_still_s), or the quietest stretches of the first ``learn_s`` seconds."""
 
-    window_s: float | None = Field(None, gt=0)
-    min_duration_s: float | None = Field(None, gt=0)
-    edge_trim_s: float | None = Field(None, ge=0)
-    init_still_s: float | None = Field(None, gt=0)
-    learn_s: float = Field(120.0, gt=0)
-    threshold_k: float = Field(5.0, gt=0)
-    accel_threshold: float | None = Field(None, ge=0)
-    gyro_threshold: float | None = Field(None, ge=0)
-    max_gap_frames: int = Field(5, ge=0)
+    window_s: float | None = Field(
+        None, gt=0, description="moving-variance window (s; unset: about 100 frames)"
+    )
+    min_duration_s: float | None = Field(
+        None, gt=0, description="shortest static window kept (s; unset: max(window_s, 0.5 s))"
+    )
+    edge_trim_s: float | None = Field(
+        None, ge=0, description="dropped at both ends of a window (s; unset: window_s / 2)"
+    )
+    init_still_s: float | None = Field(
+        None,
+        gt=0,
+        description="the unit starts still for this long: learn the noise floor there (s)",
+    )
+    learn_s: float = Field(
+        120.0,
+        gt=0,
+        description="else learn it from the quietest stretches of the first learn_s (s)",
+    )
+    threshold_k: float = Field(5.0, gt=0, description="threshold = threshold_k x noise floor")
+    accel_threshold: float | None = Field(
+        None, ge=0, description="explicit accel threshold on the moving variance ((m/s^2)^2)"
+    )
+    gyro_threshold: float | None = Field(
+        None, ge=0, description="explicit gyro threshold on the moving variance (gyro units^2)"
+    )
+    max_gap_frames: int = Field(
+        5, ge=0, description="longest run of lost or invalid frames a window may contain"
+    )
 
 
 class SchedulerSettings(Section):
-    min_positions: int = Field(12, ge=1)
-    min_new_positions: int = Field(4, ge=1)
-    sensor: Literal["gyro", "accel", "both"] = "both"
-    method: Literal["lm", "nafsa", "safsa", "oafsa"] = "lm"
-    mc_runs: int = Field(100, ge=1)
-    use_last_positions: int = Field(200, ge=1)
-    #: calibrate the gyro from the stored motion between windows too (recal.slews)
-    use_slews: bool = True
-    #: a job running longer is killed and recorded as failed (s)
-    job_timeout_s: float = Field(1800.0, gt=0)
-    #: at shutdown a running job may finish for this long, then it is abandoned (s); keep it
-    #: below the unit's TimeoutStopSec
-    stop_wait_s: float = Field(60.0, ge=0)
+    min_positions: int = Field(
+        12, ge=1, description="stored windows before the first automatic recalibration"
+    )
+    min_new_positions: int = Field(
+        4, ge=1, description="new windows since the last job before the next automatic one"
+    )
+    sensor: Literal["gyro", "accel", "both"] = Field("both", description="triads to calibrate")
+    method: Literal["lm", "nafsa", "safsa", "oafsa"] = Field(
+        "lm", description="estimator (as recal calibrate --method)"
+    )
+    mc_runs: int = Field(100, ge=1, description="Monte Carlo runs for the uncertainties")
+    use_last_positions: int = Field(
+        200, ge=1, description="a job uses at most this many of the most recent windows"
+    )
+    use_slews: bool = Field(
+        True,
+        description="calibrate the gyro from the stored motion between windows too (recal.slews)",
+    )
+    job_timeout_s: float = Field(
+        1800.0, gt=0, description="a job running longer is killed and recorded as failed (s)"
+    )
+    stop_wait_s: float = Field(
+        60.0,
+        ge=0,
+        description="at shutdown a running job may finish for this long, then it is abandoned "
+        "(s); keep it below the unit's TimeoutStopSec",
+    )
 
 
 class GateSettings(Section):
-    max_chi2_red: float = Field(4.0, gt=0)
-    max_change_sigma: float = Field(6.0, gt=0)
-    max_relative_scale_sigma: float = Field(2e-3, gt=0)
-    allow_jump: bool = False
+    max_chi2_red: float = Field(
+        4.0, gt=0, description="reject a fit whose residuals exceed the window noise this much"
+    )
+    max_change_sigma: float = Field(
+        6.0, gt=0, description="reject a coefficient moving more sigmas from the current version"
+    )
+    max_relative_scale_sigma: float = Field(
+        2e-3, gt=0, description="reject an estimated scale factor less certain than this (relative)"
+    )
+    allow_jump: bool = Field(
+        False, description="accept changes beyond max_change_sigma (after a repair), with a note"
+    )
 
 
 class ApiSettings(Section):
-    host: str = "127.0.0.1"
-    port: int = Field(8750, ge=0, le=65535)
-    #: bearer token the write endpoints require (``Authorization: Bearer ...``); without one
-    #: they are refused, and the API may only listen on a loopback address
-    token: SecretStr | None = None
-    #: browser origins (``scheme://host[:port]``) allowed to call the API from their pages
-    allowed_origins: list[str] = []
-    #: open ``/events`` streams at once; more are answered 429
-    max_event_streams: int = Field(32, ge=1, le=10_000)
+    host: str = Field(
+        "127.0.0.1", description="address the HTTP API listens on (not loopback: needs a token)"
+    )
+    port: int = Field(8750, ge=0, le=65535, description="its TCP port")
+    token: SecretStr | None = Field(
+        None,
+        description="bearer token the write endpoints require (Authorization: Bearer ...); "
+        "without one they are refused, and the API may only listen on a loopback address",
+    )
+    allowed_origins: list[str] = Field(
+        [],
+        description="browser origins (scheme://host[:port]) allowed to call the API from their "
+        "pages",
+    )
+    max_event_streams: int = Field(
+        32, ge=1, le=10_000, description="open /events streams at once; more are answered 429"
+    )
 
     @field_validator("token")
     @classmethod
@@ -173,15 +233,29 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="RECAL_", env_nested_delimiter="__")
 
-    database_url: str = "sqlite:///recal.db"
-    publish_path: str = "coefficients.json"
-    prior_path: str | None = None
-    device: DeviceSettings = DeviceSettings()
-    site: SiteSettings = SiteSettings()
-    detector: DetectorSettings = DetectorSettings()
-    scheduler: SchedulerSettings = SchedulerSettings()
-    gate: GateSettings = GateSettings()
-    api: ApiSettings = ApiSettings()
+    database_url: str = Field(
+        "sqlite:///recal.db",
+        description="where windows, calibrations and events are kept: sqlite:///FILE or "
+        "postgresql+psycopg://user@host/db (its schema is upgraded at start)",
+    )
+    publish_path: str = Field(
+        "coefficients.json", description="JSON file the accepted coefficients are published to"
+    )
+    prior_path: str | None = Field(
+        None, description="coefficients JSON the first calibration starts from (unset: none)"
+    )
+    device: DeviceSettings = Field(DeviceSettings(), description="the IMU and its link")
+    site: SiteSettings = Field(SiteSettings(), description="where the unit is")
+    detector: DetectorSettings = Field(
+        DetectorSettings(), description="the static detector (finds the still windows)"
+    )
+    scheduler: SchedulerSettings = Field(
+        SchedulerSettings(), description="when and how recalibrations run"
+    )
+    gate: GateSettings = Field(
+        GateSettings(), description="what a calibration must pass to be published"
+    )
+    api: ApiSettings = Field(ApiSettings(), description="the HTTP API")
 
     @model_validator(mode="before")
     @classmethod
