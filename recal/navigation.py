@@ -209,36 +209,39 @@ class Decimator:
             if temperature_c is not None and self._has_temp
             else np.zeros(n)
         )
-        gyro, accel = np.asarray(gyro, float)[ok], np.asarray(accel, float)[ok]
-        self._parts.append((index[ok] // self.factor, gyro, accel, temp[ok]))
+        block = index[ok] // self.factor
+        b0 = int(block[0]) if block.size else 0
+        local = block - b0
+        size = int(local.max()) + 1 if block.size else 0
+        cols = np.column_stack(
+            [np.asarray(gyro, float)[ok], np.asarray(accel, float)[ok], temp[ok]]
+        )
+        # Reduced to per-block sums at once: memory grows with the output rows, not the input.
+        sums = np.stack([np.bincount(local, cols[:, i], size) for i in range(7)], axis=1)
+        self._parts.append((b0, np.bincount(local, minlength=size).astype(float), sums))
 
     def result(self) -> ImuData:
         """All complete blocks so far (a last, partial block is dropped)."""
         if not self._parts:
             raise RecalInputError("the recording has no frames")
-        if len(self._parts) > 1:  # joined once, so a second call costs nothing extra
-            self._parts = [tuple(np.concatenate(c) for c in zip(*self._parts, strict=True))]
-        block, gyro, accel, temp = self._parts[0]
         n_blocks = self._index // self.factor
-        keep = block < n_blocks
-        block = block[keep]
-        counts = np.bincount(block, minlength=n_blocks).astype(float)
-        means = []
-        for data in (gyro[keep], accel[keep], temp[keep, None]):
-            s = np.stack(
-                [np.bincount(block, data[:, i], minlength=n_blocks) for i in range(data.shape[1])],
-                axis=1,
-            )
-            with np.errstate(invalid="ignore", divide="ignore"):
-                means.append(s / counts[:, None])
+        counts = np.zeros(n_blocks + 1)
+        sums = np.zeros((n_blocks + 1, 7))
+        for b0, c, s in self._parts:  # a loop over chunks; blocks split by a chunk edge add up
+            stop = min(b0 + c.size, n_blocks + 1)
+            counts[b0:stop] += c[: stop - b0]
+            sums[b0:stop] += s[: stop - b0]
+        counts, sums = counts[:n_blocks], sums[:n_blocks]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = sums / counts[:, None]
         empty = counts == 0
         if empty.any():  # a whole block lost: hold the previous block's value
             idx = np.where(~empty, np.arange(n_blocks), 0)
             np.maximum.accumulate(idx, out=idx)
-            means = [m[idx] for m in means]
+            means = means[idx]
         time_s = (self._t0 or 0.0) + np.arange(n_blocks) * self.factor / self.input_rate_hz
-        temp_out = means[2][:, 0] if self._has_temp else None
-        return ImuData(time_s, means[0], means[1], temp_out, counts, self.rate_hz)
+        temp_out = means[:, 6] if self._has_temp else None
+        return ImuData(time_s, means[:, :3], means[:, 3:6], temp_out, counts, self.rate_hz)
 
 
 def decimate(
