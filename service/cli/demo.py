@@ -20,14 +20,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "demo",
         help="simulate a session and run the whole service pipeline on it (SQLite)",
-        description=__doc__.splitlines()[0],
+        description=__doc__.splitlines()[0].replace("``", ""),
     )
     p.add_argument("--dir", default="recal-demo", help="folder for the demo files (default "
                    "./recal-demo: capture, database, published coefficients)")  # fmt: skip
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--latitude", type=float, default=57.7)
+    p.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="random seed of the simulated unit, noise and capture (default 0)")  # fmt: skip
+    p.add_argument("--latitude", type=float, default=57.7, metavar="DEG",
+                   help="latitude of the simulated vessel, in degrees (default 57.7)")  # fmt: skip
     p.add_argument("--serve", action="store_true", help="then serve the HTTP API until Ctrl-C")
-    p.add_argument("--port", type=int, default=8750)
+    p.add_argument("--port", type=int, default=8750,
+                   help="TCP port of the API on 127.0.0.1 with --serve (default 8750)")  # fmt: skip
     p.set_defaults(func=run)
     return p
 

@@ -3,21 +3,119 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
+
+#: Stands for the settings listing in the epilog until the help is shown: building it imports
+#: pydantic, which ``recal --help`` and the other commands should not pay for.
+_SETTINGS = "\0settings\0"
+_HEADER = "configuration settings"
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "serve",
         help="run the onboard service: read the IMU, find static windows, recalibrate, publish",
-        description="Run the daemon described by a TOML config (see service/config.py; every "
-        "setting can be overridden with RECAL_* environment variables, e.g. "
-        "RECAL_SITE__LATITUDE_DEG=57.7; the API's write token is [api] token or RECAL_API__TOKEN). "
-        "Stops cleanly on SIGINT/SIGTERM.",
+        description="Run the daemon described by a TOML config: upgrade the database schema, "
+        "read the IMU, store its static windows, recalibrate on schedule, gate and publish the "
+        "coefficients, serve the HTTP API. Stops cleanly on SIGINT/SIGTERM.",
+        epilog=_SETTINGS,
+        formatter_class=_SettingsHelpFormatter,
     )
-    p.add_argument("--config", required=True, metavar="FILE.toml")
-    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    p.add_argument("--config", required=True, metavar="FILE.toml",
+                   help="the settings (listed below); RECAL_* environment variables override "
+                   "them")  # fmt: skip
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+                   help="messages logged on stderr from this level up (default INFO)")  # fmt: skip
     p.set_defaults(func=run)
     return p
+
+
+class _SettingsHelpFormatter(argparse.HelpFormatter):
+    """Fills in the settings listing and keeps its layout (argparse would rewrap it)."""
+
+    def add_text(self, text: str | None) -> None:
+        super().add_text(settings_help(self._width) if text == _SETTINGS else text)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith(_HEADER):
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def settings_help(width: int = 79) -> str:
+    """Every setting of the TOML file, by section: key = default, allowed values, description;
+    read from the pydantic models of :mod:`service.config`."""
+    import textwrap
+
+    from pydantic import BaseModel
+
+    from service.config import Settings
+
+    lines = textwrap.wrap(
+        f"{_HEADER} (the TOML file; an environment variable RECAL_<SECTION>__<KEY> overrides "
+        "a key, e.g. RECAL_SITE__LATITUDE_DEG=57.7 or RECAL_API__TOKEN; unset: no value):",
+        width,
+    ) + [""]
+    sections = []
+    for key, info in Settings.model_fields.items():
+        if isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel):
+            sections.append((key, info))
+        else:
+            lines += _setting(key, info, width)
+    for key, info in sections:
+        lines += ["", f"[{key}]" + (f"  # {info.description}" if info.description else "")]
+        for name, field in info.annotation.model_fields.items():
+            lines += _setting(name, field, width)
+    return "\n".join(lines) + "\n"
+
+
+def _setting(key: str, info: Any, width: int) -> list[str]:
+    import textwrap
+
+    allowed = _allowed(info)
+    head = f"  {key} = {_toml(info.get_default(call_default_factory=True))}"
+    out = [head + (f"  ({allowed})" if allowed else "")]
+    if info.description:
+        out += textwrap.wrap(info.description, width, initial_indent=" " * 6,
+                             subsequent_indent=" " * 6)  # fmt: skip
+    return out
+
+
+def _toml(value: Any) -> str:
+    import json
+
+    if value is None:
+        return "unset"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str | list):
+        return json.dumps(value)  # a TOML basic string or array of them
+    return repr(value)
+
+
+def _allowed(info: Any) -> str:
+    """The choices of a Literal, or the bounds of a number."""
+    import types
+    import typing
+
+    ann = info.annotation
+    union = typing.get_origin(ann) in (typing.Union, types.UnionType)
+    parts = typing.get_args(ann) if union else (ann,)
+    choices = [
+        str(arg)
+        for part in parts
+        if typing.get_origin(part) is typing.Literal
+        for arg in typing.get_args(part)
+    ]
+    if choices:
+        return "one of " + ", ".join(choices)
+    symbols = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+    return ", ".join(
+        f"{symbols[name]} {getattr(m, name):g}"
+        for m in info.metadata
+        for name in symbols
+        if getattr(m, name, None) is not None
+    )
 
 
 def run(args: argparse.Namespace) -> int:

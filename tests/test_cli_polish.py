@@ -1,0 +1,99 @@
+"""Command-line polish: ``recal --version``, ``--debug`` after the subcommand, a help text for
+every option of ``demo`` and ``serve``, and the settings listed by ``recal serve --help``."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+from pydantic import BaseModel
+
+from service.cli.main import build_parser, main
+from service.config import Settings
+
+
+def _help(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 0
+    return capsys.readouterr().out
+
+
+def test_version_is_the_installed_distribution(capsys: pytest.CaptureFixture[str]) -> None:
+    assert _help(["--version"], capsys) == f"recal {version('fog-recal')}\n"
+    script = Path(sys.executable).with_name("recal")
+    done = subprocess.run([str(script), "--version"], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout, done.stderr) == (0, f"recal {version('fog-recal')}\n", "")
+
+
+@pytest.mark.parametrize(
+    "argv, debug",
+    [
+        (["calibrate", "p.csv"], False),
+        (["--debug", "calibrate", "p.csv"], True),
+        (["calibrate", "p.csv", "--debug"], True),
+        (["calibrate", "--debug", "p.csv"], True),
+        (["db", "--debug", "current"], True),
+        (["db", "current", "--debug"], True),
+        (["serve", "--config", "x.toml", "--debug"], True),
+    ],
+)
+def test_debug_is_accepted_before_and_after_the_subcommand(argv: list[str], debug: bool) -> None:
+    assert build_parser().parse_args(argv).debug is debug
+
+
+def test_debug_after_the_subcommand_shows_the_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def boom(args: argparse.Namespace) -> int:
+        raise RuntimeError("boom")
+
+    monkeypatch.delenv("RECAL_DEBUG", raising=False)
+    monkeypatch.setattr("service.cli.db.run_current", boom)
+    assert main(["db", "current", "--database", "sqlite://"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "internal error: RuntimeError: boom" in err
+    assert main(["db", "current", "--database", "sqlite://", "--debug"]) == 1
+    assert "Traceback" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["demo", "serve", "db"])
+def test_every_option_has_a_help_text(command: str) -> None:
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    parsers = [sub.choices[command]]
+    for parser in parsers:  # nested subcommands too
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                parsers += action.choices.values()
+            elif action.option_strings:
+                assert action.help and action.help != argparse.SUPPRESS, (command, action.dest)
+
+
+def test_serve_help_lists_every_setting(capsys: pytest.CaptureFixture[str]) -> None:
+    out = _help(["serve", "--help"], capsys)
+    flat = " ".join(out.split())  # descriptions are wrapped to the terminal
+    assert "service/config.py" not in out  # no pointer at the source: the settings themselves
+    assert "RECAL_<SECTION>__<KEY>" in flat
+    for key, info in Settings.model_fields.items():
+        model = info.annotation
+        if isinstance(model, type) and issubclass(model, BaseModel):
+            assert f"[{key}]" in out
+            fields = model.model_fields
+        else:
+            fields = {key: info}
+        for name, field in fields.items():
+            assert f"\n  {name} = " in out, name
+            assert " ".join(field.description.split()) in flat, name
+    assert '\n  url = "loop://"\n' in out
+    assert "\n  rate_hz = 1000.0  (> 0, <= 5000)\n" in out
+    assert '\n  format = "kvh-a"  (one of kvh-a, kvh-b, kvh-c)\n' in out
+    assert "\n  token = unset\n" in out and "\n  use_slews = true\n" in out
+
+
+def test_top_level_help_lists_db(capsys: pytest.CaptureFixture[str]) -> None:
+    out = _help(["--help"], capsys)
+    assert "--version" in out and "\n    db " in out
