@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import threading
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass, field
@@ -316,11 +317,20 @@ class Store:
 
     # ---- schema -------------------------------------------------------------------------
     def _check_schema_version(self) -> None:
-        try:
-            with self._lock, self._engine.connect() as conn:
-                found, revisions = _recorded_schema(conn)
-        except SQLAlchemyError as exc:
-            raise StoreError(f"cannot open database {self.url}: {_one_line(exc)}") from None
+        # SQLite answers "database is locked" at once (no busy wait) when a new connection's
+        # WAL set-up meets another process migrating the file: wait for it, as a writer would
+        deadline = time.monotonic() + 30.0
+        while True:
+            try:
+                with self._lock, self._engine.connect() as conn:
+                    found, revisions = _recorded_schema(conn)
+                break
+            except SQLAlchemyError as exc:
+                line = _one_line(exc)
+                if "locked" in line and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                    continue
+                raise StoreError(f"cannot open database {self.url}: {line}") from None
         _require_known(found, revisions, self.url)
 
     def create_schema(self) -> None:
