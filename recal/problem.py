@@ -291,10 +291,7 @@ class Problem:
     def _slew_values(self, theta: np.ndarray, x: dict[str, np.ndarray]) -> np.ndarray:
         """Slew residuals (P, 2 S), rad (:func:`recal.slews.slew_residuals`)."""
         assert self.slews is not None and self.slew_basis is not None
-        theta = np.atleast_2d(theta)
-        gain, A, offset, _ = self.model("gyro")._parts(
-            theta[:, self._slices["gyro"]], self._slew_ctx
-        )
+        gain, A, offset = self._gyro_parts(theta)
         f = x["accel"]  # (3, P, M)
         f1 = np.moveaxis(f[:, :, self.slews.first], 0, -1)
         f2 = np.moveaxis(f[:, :, self.slews.second], 0, -1)
@@ -312,13 +309,18 @@ class Problem:
         g = self.positions.gyro
         return 0.5 * (g[self.slews.first] + g[self.slews.second])
 
-    def _rotation_values(self, theta: np.ndarray) -> np.ndarray:
-        """Known-rotation residuals (P, 3 K), rad (:func:`recal.slews.rotation_residuals`)."""
-        assert self.slews is not None and self.known_rotations is not None
+    def _gyro_parts(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The gyro model's gain, matrix and offset in the context of each slew's first window."""
         theta = np.atleast_2d(theta)
         gain, A, offset, _ = self.model("gyro")._parts(
             theta[:, self._slices["gyro"]], self._slew_ctx
         )
+        return gain, A, offset
+
+    def _rotation_values(self, theta: np.ndarray) -> np.ndarray:
+        """Known-rotation residuals (P, 3 K), rad (:func:`recal.slews.rotation_residuals`)."""
+        assert self.slews is not None and self.known_rotations is not None
+        gain, A, offset = self._gyro_parts(theta)
         return rotation_residuals(
             self.slews, self.known_rotations, gain, A, offset, self.slew_earth_rate,
             self._zero_rate,
