@@ -94,6 +94,14 @@ class SiteSettings(Section):
         45.0, ge=-90, le=90, description="where the unit is: gravity and Earth rate follow it"
     )
     height_m: float = Field(0.0, description="height above the WGS-84 ellipsoid (m)")
+    imu_attitude_rpy_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0),
+        description="the IMU's roll, pitch, yaw in north-east-down at berth (deg): where its axes "
+        "point decides which coefficient errors reach the predicted navigation error",
+    )
+    navigation_hours: float = Field(
+        24.0, gt=0, le=720, description="horizon of the predicted static navigation error (h)"
+    )
 
 
 class DetectorSettings(Section):
@@ -175,6 +183,14 @@ class GateSettings(Section):
     )
     allow_jump: bool = Field(
         False, description="accept changes beyond max_change_sigma (after a repair), with a note"
+    )
+    refuse_worse_navigation: bool = Field(
+        False,
+        description="reject a version whose predicted static navigation error (1 sigma, from its "
+        "uncertainty) exceeds the accepted version's by more than navigation_margin_nmi",
+    )
+    navigation_margin_nmi: float = Field(
+        0.0, ge=0, description="tolerance of refuse_worse_navigation (nautical miles)"
     )
 
 

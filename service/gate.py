@@ -10,10 +10,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from recal.calibrate import CalibrationResult
+from recal.navigation import NMI_M
 from service.db import CalibrationRecord
+
+if TYPE_CHECKING:
+    from recal.ins_error import NavigationImpact
 
 #: Verdicts of recal.observability from worst to best.
 VERDICTS = ("insufficient", "partial", "full")
@@ -32,6 +36,8 @@ class GateConfig:
     max_relative_scale_sigma: float = 2e-3
     require_verdict: str = "partial"
     allow_jump: bool = False
+    refuse_worse_navigation: bool = False
+    navigation_margin_nmi: float = 0.0
 
     def __post_init__(self) -> None:
         if self.require_verdict not in VERDICTS[1:]:
@@ -50,9 +56,12 @@ def gate(
     result: CalibrationResult,
     previous: CalibrationRecord | None,
     config: GateConfig | None = None,
+    impact: NavigationImpact | None = None,
 ) -> GateDecision:
     """Accept or reject ``result`` against the current accepted record ``previous``.
 
+    ``impact``: the version's predicted navigation impact (:mod:`recal.ins_error`), checked when
+    ``refuse_worse_navigation`` is set and summarised in the notes otherwise.
     Rejected: ``reasons`` says every limit broken. Accepted: ``reasons`` holds notes.
     """
     cfg = config or GateConfig()
@@ -61,6 +70,7 @@ def gate(
     estimated, sigma = _flat_result(result)
     problems = _check_verdict(result, cfg) + _check_chi2(result, cfg)
     problems += _check_scales(names, values, estimated, sigma, cfg)
+    problems += _check_navigation(impact, cfg)
     if previous is None:
         return GateDecision(
             not problems, problems or ["no accepted calibration yet: nothing to compare against"]
@@ -85,6 +95,8 @@ def gate(
             f"largest change from version {previous.version}: {name} {change:.1f} sigma "
             f"(limit {limit:g})"
         )
+    if impact is not None and impact.from_version is not None:
+        notes.append(impact.sentence())
     return GateDecision(accepted=not problems, reasons=problems or notes)
 
 
@@ -95,6 +107,20 @@ def _check_verdict(result: CalibrationResult, cfg: GateConfig) -> list[str]:
     return [
         f"observability verdict is {verdict} ({result.observability.message}); "
         f"{cfg.require_verdict} or better is required"
+    ]
+
+
+def _check_navigation(impact: NavigationImpact | None, cfg: GateConfig) -> list[str]:
+    if impact is None or not cfg.refuse_worse_navigation:
+        return []
+    if not impact.worse_than_accepted(cfg.navigation_margin_nmi):
+        return []
+    accepted = (impact.accepted_error_m_1sigma or 0.0) / NMI_M
+    return [
+        f"predicted {impact.hours:g} h static error {impact.error_nmi_1sigma:.2f} nmi (1 sigma, "
+        f"from this version's uncertainty) is worse than accepted version "
+        f"{impact.from_version}'s {accepted:.2f} nmi by more than "
+        f"{cfg.navigation_margin_nmi:g} nmi (refuse_worse_navigation)"
     ]
 
 

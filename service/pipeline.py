@@ -422,16 +422,70 @@ def calibration_job(
     options: CalibrationOptions,
     previous: Any,
     gate_settings: dict[str, Any],
+    site: dict[str, Any] | None = None,
 ) -> JobOutcome:
-    """Calibrate, then gate against the previous accepted version. Runs in a worker process."""
+    """Calibrate, predict the navigation impact, then gate against the previous accepted
+    version. Runs in a worker process. ``site``: ``[site]`` settings (IMU attitude, horizon)."""
     from service.gate import GateConfig, gate
 
     try:
         result = calibrate(Positions.from_columns(columns, source="store"), options)
     except RecalInputError as exc:
         return JobOutcome(None, False, [str(exc)], error=str(exc))
-    decision = gate(result, previous, GateConfig(**gate_settings))
-    return JobOutcome(result.to_json_dict(), decision.accepted, list(decision.reasons))
+    document = result.to_json_dict()
+    try:
+        impact = navigation_impact_of(result, previous, site or {})
+    except (RecalInputError, ValueError, np.linalg.LinAlgError) as exc:
+        impact = None  # the coefficients stand without it; the document says why it is missing
+        document["navigation_impact_error"] = str(exc)
+    document["navigation_impact"] = None if impact is None else impact.to_json_dict()
+    decision = gate(result, previous, GateConfig(**gate_settings), impact)
+    return JobOutcome(document, decision.accepted, list(decision.reasons))
+
+
+def navigation_impact_of(result: Any, previous: Any, site: dict[str, Any]) -> Any:
+    """The predicted 24 h static navigation error of a fit, and of replacing ``previous`` (the
+    accepted :class:`CalibrationRecord`, or None) by it (:class:`recal.ins_error.NavigationImpact`).
+
+    Coefficients the fit held keep the accepted version's 1-sigma (they were held at its
+    values); a triad the fit did not calibrate is taken from the accepted version.
+    """
+    from recal.coefficients import CoefficientSet
+    from recal.ins_error import (
+        complete_seed_set,
+        navigation_impact,
+        predict_from_uncertainty,
+        seed_covariance,
+        sigma_from_doc,
+    )
+
+    lat, height = result.problem.latitude_deg, result.problem.height_m
+    attitude = tuple(site.get("imu_attitude_rpy_deg", (0.0, 0.0, 0.0)))
+    hours = float(site.get("navigation_hours", 24.0))
+    old = old_sigma = None
+    if previous is not None:
+        doc = previous.document
+        old = CoefficientSet.from_json_dict(doc.get("coefficients") or {}, source="accepted")
+        old_sigma = sigma_from_doc(doc) if doc.get("uncertainty") else {}
+    new, _ = complete_seed_set(result.coefficients, old)
+    cov, exact = seed_covariance(result.layout.term_slices(), result.covariance, old_sigma)
+    accepted_m = None
+    if previous is not None:
+        old_full, _ = complete_seed_set(old, new)
+        stored = previous.document.get("navigation_impact") or {}
+        same = [stored.get(k) for k in ("latitude_deg", "hours")] == [lat, hours] and tuple(
+            stored.get("attitude_rpy_deg") or ()
+        ) == attitude
+        if same and stored.get("static_24h_error_m_1sigma") is not None:
+            accepted_m = float(stored["static_24h_error_m_1sigma"])
+        elif old_sigma:  # an older record, or the site changed: recompute (independent 1-sigmas)
+            u = predict_from_uncertainty(previous.document, old_full, lat, height, attitude, hours)
+            accepted_m = float(u.sigma_horizontal_m[-1])
+        old = old_full
+    return navigation_impact(
+        new, cov, lat, height, attitude, hours, exact, old,
+        None if previous is None else previous.version, accepted_m,
+    )  # fmt: skip
 
 
 class SchedulerBusy(RuntimeError):
@@ -531,7 +585,7 @@ class Scheduler:
                 raise SchedulerRefused(
                     f"the {len(ids)} stored positions cannot be used: {exc}"
                 ) from None
-            args = (positions.columns, options, previous, s.gate.model_dump())
+            args = (positions.columns, options, previous, s.gate.model_dump(), s.site.model_dump())
             method = options.method
             self._finished.clear()
             try:

@@ -117,6 +117,10 @@ def test_daemon_over_a_real_http_server(tmp_path, capture):
             sdE = np.array(_leaves(doc["document"]["uncertainty"]["gyro"]["misalignment"]))
             E = layout.term_slices()["gyro.misalignment"]
             assert np.all(np.abs(got[E] - want[E]) < 4 * sdE)
+            # every version carries its predicted navigation impact at the site's latitude
+            impact = doc["document"]["navigation_impact"]
+            assert impact["latitude_deg"] == 40.0 and impact["change"] is None
+            assert 0 < impact["static_24h_error_nmi_1sigma"] < 50
             assert http.get(f"/coefficients/{version}").json()["version"] == version
             assert http.get("/coefficients/999").status_code == 404
             published = json.loads((tmp_path / "coefficients.json").read_text())
