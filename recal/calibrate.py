@@ -39,6 +39,7 @@ from recal.observability import (
     analyze,
 )
 from recal.phases import paper_phases, whitened_phase
+from recal.plugins import bind_context, plugin_file, values_by_term
 from recal.positions import Positions
 from recal.problem import Problem
 from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
@@ -216,11 +217,20 @@ def build_models(
         elif not any(t.name == name for t in plugin_terms):
             known = ", ".join(sorted(catalogue) + [t.name for t in plugin_terms])
             raise RecalInputError(f"unknown effect '{name}'; known effects: {known}")
-    extra += [t for t in plugin_terms if t.name in effects or not effects]
+    # plugins are candidates for diagnose, never part of the model unless named in effects
+    extra += [t for t in plugin_terms if t.name in effects]
     for t in extra:
         if t.sensor not in sensors:
             raise RecalInputError(f"effect {t.name} needs the {t.sensor} triad (--sensor)")
     return tuple(Model.seed(s, [t for t in extra if t.sensor == s]) for s in sensors)
+
+
+def _plugin_metadata(layout: ParameterLayout) -> dict[str, Any]:
+    """{"plugins": {effect: file}} for the plugin effects in the model (a coefficients file
+    names what must be loaded to read it back), or nothing."""
+    files = {t.name: plugin_file(t) for t in layout.term_of()}
+    files = {n: f for n, f in files.items() if f is not None}
+    return {"plugins": files} if files else {}
 
 
 def ellipsoid_start(output: np.ndarray, reference: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -520,6 +530,10 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     else:
         theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
         prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
+    # plugin terms may need site quantities or extra columns: bound to these positions here
+    models = bind_context(models, positions, values_by_term(layout, theta0), opt.latitude_deg,
+                          opt.height_m, with_slews=slews is not None)  # fmt: skip
+    layout = ParameterLayout(models)
 
     def build(theta: np.ndarray) -> Problem:
         if from_slews:  # the bias's typical change for a gyro blind to Earth rate
@@ -670,6 +684,7 @@ def calibrate(
         prior=prior_source,
         positions=problem.M,
         source=positions.source,
+        **_plugin_metadata(layout),
     )
     return CalibrationResult(
         coefficients=coeffs,

@@ -32,6 +32,7 @@ from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.model import ParameterLayout
 from recal.observability import analyze
+from recal.plugins import bind_context, values_by_term
 from recal.positions import Positions
 from recal.problem import Problem
 from recal.terms import Term, catalogue_terms
@@ -129,6 +130,8 @@ def _fit(base: CalibrationResult, opt: CalibrationOptions, effects: Sequence[str
     """Fit the model with ``effects`` on the baseline's positions, prior and residual weights."""
     positions = base.problem.positions
     fresh = build_models(base.problem.sensors, effects, opt.plugin_terms, opt.t0_c)
+    fresh = bind_context(fresh, positions, values_by_term(base.layout, base.theta_prior),
+                         opt.latitude_deg, opt.height_m, with_slews=base.problem.slews is not None)  # fmt: skip
     # the baseline's own terms (calibrate may have tuned them, e.g. the typical bias change of
     # a gyro calibrated from slews), then the effects
     models = tuple(
@@ -247,7 +250,8 @@ def _score(
     try:
         fit = _fit(base, opt, effects + [term.name])
     except RecalInputError as exc:
-        cand.identifiable, cand.reason = False, str(exc).split(": ", 1)[-1]
+        msg, src = str(exc), f"{base.problem.positions.source}: "
+        cand.identifiable, cand.reason = False, msg[len(src) :] if msg.startswith(src) else msg
         return cand
     dk = fit.rank - current.rank
     if fit.verdict == "insufficient" or dk <= 0:

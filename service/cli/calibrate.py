@@ -78,6 +78,8 @@ def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
     plugin_terms = [t for path in args.plugin for t in load_plugin(path)]
     terms = {**catalogue_terms(), **{t.name: t for t in plugin_terms}}
     prior = load_coefficients(args.prior, terms) if args.prior else None
+    if prior is not None:
+        _check_prior_plugins(prior, terms, args.prior)
     if args.latitude is None:
         print(
             "recal: --latitude not given, assuming 45 deg (gravity and the dot product "
@@ -110,6 +112,22 @@ def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
         polish=args.polish,
         swarm_config=swarm,
     )
+
+
+def _check_prior_plugins(prior, terms: dict, path: str) -> None:
+    """A prior holding a plugin effect needs that plugin: without it the effect would be
+    dropped silently."""
+    from recal.errors import RecalInputError
+    from recal.plugins import builtin_names
+
+    known = builtin_names() | set(terms)
+    missing = [n for n in prior.values if n not in known]
+    if missing:
+        files = prior.metadata.get("plugins") or {}
+        which = ", ".join(f"{n} (from {files[n]})" if n in files else n for n in missing)
+        raise RecalInputError(
+            f"{path} holds plugin effect(s) {which}: load the plugin with --plugin FILE.py"
+        )
 
 
 def load_slews(args: argparse.Namespace):
@@ -199,6 +217,13 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def result_plugins(args: argparse.Namespace) -> list:
+    """The plugin terms of the command line (loaded again: cheap, and already checked)."""
+    from service.cli.common import load_plugin
+
+    return [t for path in args.plugin for t in load_plugin(path)]
+
+
 def run_calibration(args: argparse.Namespace) -> CalibrationResult:
     from recal.calibrate import calibrate
     from service.cli.common import load_positions, progress_bar
@@ -218,6 +243,11 @@ def run(args: argparse.Namespace) -> int:
     from service.cli.common import atomic_write, print_json
 
     result = run_calibration(args)
+    unused = [t.name for t in result_plugins(args) if t.name not in result.terms]
+    if unused:
+        print(f"recal calibrate: plugin effect(s) {', '.join(unused)} loaded but not fitted: "
+              "name them in --effects (recal diagnose tries them as candidates)",
+              file=sys.stderr)  # fmt: skip
     doc = result.to_json_dict()
     if args.output:
         atomic_write(args.output, json.dumps(doc["coefficients"], indent=2) + "\n")

@@ -84,22 +84,28 @@ def load_coefficients(path: str, terms: dict[str, Term] | None = None) -> Coeffi
 
 
 def load_plugin(path: str) -> list[Term]:
-    """Import a user's Python file defining ``TERMS = [Term, ...]`` (see recal.terms)."""
-    from recal.terms import Term
+    """Import a user's Python file defining ``TERMS = [Term, ...]`` (see recal.plugins); each
+    term is checked (recal.plugins.validate_terms), a mistake is an input error."""
+
+    from recal.plugins import validate_terms
 
     p = Path(path)
     if not p.is_file():
         raise RecalInputError(f"plugin {p} does not exist")
-    spec = importlib.util.spec_from_file_location(f"recal_plugin_{p.stem}", p)
+    name = f"recal_plugin_{p.stem}"
+    spec = importlib.util.spec_from_file_location(name, p)
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    # registered so dataclasses, pickling and the coefficients file can find the term's file
+    sys.modules[name] = module
     try:
         spec.loader.exec_module(module)  # type: ignore[union-attr]
     except Exception as exc:  # noqa: BLE001 - user code: report, don't crash
+        sys.modules.pop(name, None)
         raise RecalInputError(f"plugin {p} failed to load: {type(exc).__name__}: {exc}") from None
     terms = getattr(module, "TERMS", None)
-    if not terms or not all(isinstance(t, Term) for t in terms):
+    if not isinstance(terms, (list, tuple)) or not terms:
         raise RecalInputError(f"plugin {p} must define TERMS = [recal.terms.Term, ...]")
-    return list(terms)
+    return validate_terms(terms, str(p))
 
 
 def parse_effects(text: str | None) -> list[str]:
