@@ -38,6 +38,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from recal import __version__
 from service.broadcast import TIMEOUT, Broadcast, Stream, TooManyStreams
 from service.config import ApiSettings
+from service.dashboard import mount_dashboard
 from service.db import CalibrationRecord, Store, StoreError
 from service.publish import Publisher
 
@@ -149,6 +150,7 @@ def create_app(
     require_token = _token_checker(api)
     _add_docs(app)
     _add_origin_guard(app, api.allowed_origins)
+    mount_dashboard(app, store)  # the operator's page at /
 
     @app.exception_handler(StoreError)
     async def store_unavailable(_request: Request, exc: StoreError) -> JSONResponse:

@@ -1,0 +1,164 @@
+"""The dashboard in a real browser: Debian's chromium driven by playwright, on a real daemon fed
+by a replayed KVH capture. Skipped without chromium or playwright, except under CI (CI set),
+where it must run."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from recal.session import simulate_session
+from service.capture_sim import kvh_like_truth, session_to_kvh
+from service.config import (
+    DetectorSettings,
+    DeviceSettings,
+    SchedulerSettings,
+    Settings,
+    SiteSettings,
+)
+from service.daemon import build_service, make_server
+
+CHROMIUM = Path("/usr/bin/chromium")
+TOKEN = "dashboard-test-token-0123456789"
+REFUSED_401 = "the server responded with a status of 401 (Unauthorized)"
+
+
+def _browser_missing() -> str | None:
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright is not installed"
+    return None if CHROMIUM.exists() else f"{CHROMIUM} is missing (apt-get install chromium)"
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    missing = _browser_missing()
+    if missing and not os.environ.get("CI"):
+        pytest.skip(missing)
+    assert missing is None, f"the browser test must run under CI: {missing}"
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture()
+def daemon(tmp_path: Path) -> Iterator[tuple[str, Any]]:
+    """A real daemon on a free port, its 24 windows stored and version 1 accepted."""
+    rate = 100.0
+    session = simulate_session(kvh_like_truth(4), "24", latitude_deg=50.0, seed=4, rate_hz=rate,
+                               window_s=15.0, slew_s=3.0, first_hold_s=30.0)  # fmt: skip
+    data = session_to_kvh(session, rng=4)[0]
+    capture = tmp_path / "session.bin"
+    capture.write_bytes(data)
+    settings = Settings(
+        database_url=f"sqlite:///{tmp_path / 'recal.db'}",
+        publish_path=str(tmp_path / "coefficients.json"),
+        device=DeviceSettings(url=f"replay://{capture}?speed=max&rate={rate:g}", rate_hz=rate),
+        site=SiteSettings(latitude_deg=50.0),
+        detector=DetectorSettings(init_still_s=20.0, min_duration_s=5.0),
+        scheduler=SchedulerSettings(min_positions=100, min_new_positions=100),  # manual only
+        api={"port": 0, "token": TOKEN},
+    )
+    service = build_service(settings)
+    server = make_server(service)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not server.started:
+            assert time.monotonic() < deadline, "server did not start"
+            time.sleep(0.02)
+        base = f"http://127.0.0.1:{server.servers[0].sockets[0].getsockname()[1]}"
+        service.reader.start()
+        while service.reader.health().counters.bytes_in < len(data):
+            assert time.monotonic() < deadline, "replay did not finish"
+            time.sleep(0.05)
+        service.ingest.flush()
+        with httpx.Client(base_url=base, timeout=30) as http:
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            assert http.post("/recalibrate", headers=auth).status_code == 202
+            service.scheduler.wait(timeout=120)
+            assert http.get("/coefficients").json()["version"] == 1
+        yield base, service
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        service.close()
+
+
+@pytest.fixture()
+def page(browser: Any) -> Iterator[Any]:
+    page = browser.new_page(viewport={"width": 1600, "height": 1000})
+    try:
+        yield page
+    finally:
+        page.close()  # ends the page's /events stream before the daemon stops
+
+
+def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path):
+    from playwright.sync_api import expect
+
+    base, _ = daemon
+    problems: list[str] = []  # script errors and CSP violations (reported as console errors)
+    page.on("pageerror", lambda exc: problems.append(str(exc)))
+    page.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
+    page.goto(f"{base}/")
+
+    # the current version: every coefficient of both triads, with status and sigma
+    page.wait_for_selector("#coefficients tbody tr:not(.group)")
+    assert page.text_content("#version") == "v1"
+    assert page.text_content("#verdict") == "ACCEPTED"
+    rows = page.locator("#coefficients tbody tr:not(.group)")
+    assert rows.count() == 27
+    assert "gyro Kx" in rows.first.text_content()
+    assert "estimated" in rows.first.text_content()
+    # plotly drew the history (one accepted point) and the coverage (24 stored windows)
+    page.wait_for_selector("#history-chart .main-svg")
+    page.wait_for_selector("#coverage-chart .scatterlayer .point")
+    assert page.locator("#history-chart .scatterlayer .point").count() >= 1
+    window_points = page.locator("#coverage-chart .scatterlayer .trace").first.locator(".point")
+    assert window_points.count() == 24
+    page.wait_for_selector("#residual-chart .barlayer .point")
+    assert page.locator("#windows tbody tr").count() == 24
+    # health and log are polled
+    # (the replayed capture has ended, so the reader reports a silent device: degraded)
+    status = httpx.get(f"{base}/health").json()["status"]
+    expect(page.locator("#health")).to_have_text(f"health {status.upper()}")
+    if status != "ok":
+        expect(page.locator("#problems")).to_contain_text("reader:")
+    page.wait_for_selector("#log tbody tr")
+    expect(page.locator("#live")).to_have_text("live")
+
+    # without a token the trigger is refused, and the page says so
+    page.fill("#token", "")
+    page.click("#recalibrate")
+    page.wait_for_selector("#trigger-result.refused")
+    assert "refused (401)" in page.text_content("#trigger-result")
+
+    # with the token: queued, and the accepted version arrives without a reload
+    page.evaluate("() => { window.__same_page = true; }")
+    page.fill("#token", TOKEN)
+    page.click("#recalibrate")
+    page.wait_for_selector("#trigger-result.queued")
+    expect(page.locator("#version")).to_have_text("v2", timeout=60_000)
+    assert page.evaluate("() => window.__same_page") is True
+    assert page.evaluate("() => sessionStorage.getItem('recal-token')") == TOKEN
+    accepted_points = page.locator("#history-chart .scatterlayer .trace").nth(2).locator(".point")
+    expect(accepted_points).to_have_count(2)
+    assert "v1" in page.text_content("#change-head")
+    page.screenshot(path=str(tmp_path / "dashboard.png"), full_page=True)
+    # the refusal itself is the only failed request
+    assert problems == [f"Failed to load resource: {REFUSED_401}"], problems
