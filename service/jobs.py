@@ -114,6 +114,7 @@ class JobRunner:
         self._ending = False  # on_end of the running job is being called (it may chain a job)
         self._jobs = 0
         self._closed = False
+        self._stopping = False  # shutdown has begun: the running job may finish, none starts
         self.last_beat = time.monotonic()  # the supervisor's heartbeat (health, watchdog)
         self._thread = threading.Thread(target=self._supervise, name="job-supervisor", daemon=True)
         self._thread.start()
@@ -140,8 +141,9 @@ class JobRunner:
         """Start ``fn(*args)`` in a new worker process; ``on_end`` is called once, from the
         supervisor thread, when it ends. Raises RuntimeError when busy or closed."""
         with self._lock:
-            if self._closed:
-                raise RuntimeError("the job runner is shut down")
+            if self._closed or self._stopping:
+                # not even a job chained by the end of the last one: it would be killed at once
+                raise RuntimeError("the service is stopping: no new job starts")
             # a job stays "running" until its end is handled (stored, published), so nothing
             # starts from a stale prior; only its own end handler may chain the next one
             chaining = self._ending and threading.current_thread() is self._thread
@@ -162,6 +164,8 @@ class JobRunner:
     def shutdown(self, wait_s: float = 0.0) -> None:
         """Let the running job finish for up to ``wait_s``, then kill it; stop the supervisor."""
         deadline = time.monotonic() + max(0.0, wait_s)
+        with self._lock:
+            self._stopping = True
         while self.busy and time.monotonic() < deadline:
             time.sleep(POLL_S)
         with self._lock:
@@ -260,6 +264,11 @@ class JobRunner:
                           message=f"stopped by signal {-code} sent to the service's process "
                           "group while the worker was starting")  # fmt: skip
         how = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+        with self._lock:
+            cancel = self._cancel
+        if cancel:  # shutdown (or cancel) reaped it first, e.g. while this thread was slow
+            return JobEnd(r.job, "cancelled", message=f"{cancel} (the worker ended by {how})",
+                          duration_s=elapsed)  # fmt: skip
         if code == -signal.SIGKILL:
             how += ": killed, by the kernel's out-of-memory killer or by an operator"
         return JobEnd(r.job, "died", message=f"the worker process died ({how})",

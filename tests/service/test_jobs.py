@@ -126,8 +126,30 @@ def test_shutdown_waits_then_cancels(tmp_path) -> None:
     assert time.monotonic() - t0 < 10
     assert [e.status for e in ends] == ["cancelled"]
     assert "stopped" in ends[0].message
-    with pytest.raises(RuntimeError, match="shut down"):
+    with pytest.raises(RuntimeError, match="stopping"):
         runner.submit(_ok, (1,), ends.append)
+
+
+def test_a_job_ending_during_shutdown_chains_nothing() -> None:
+    """The end of the last job may try to chain the next one (new windows arrived): once the
+    service is stopping that is refused, not started and then killed as 'died'."""
+    runner = JobRunner(timeout_s=60)
+    ends: list[JobEnd] = []
+    chained: list[str] = []
+
+    def on_end(end: JobEnd) -> None:
+        ends.append(end)
+        try:
+            runner.submit(_sleep, (30.0,), ends.append)
+        except RuntimeError as exc:
+            chained.append(str(exc))
+
+    runner.submit(_sleep, (0.5,), on_end)
+    t0 = time.monotonic()
+    runner.shutdown(wait_s=10)
+    assert time.monotonic() - t0 < 10
+    assert [e.status for e in ends] == ["ok"]
+    assert chained == ["the service is stopping: no new job starts"]
 
 
 def test_no_worker_outlives_a_killed_daemon(tmp_path) -> None:
