@@ -158,7 +158,7 @@ def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path)
     assert page.evaluate("() => sessionStorage.getItem('recal-token')") == TOKEN
     accepted_points = page.locator("#history-chart .scatterlayer .trace").nth(2).locator(".point")
     expect(accepted_points).to_have_count(2)
-    assert "v1" in page.text_content("#change-head")
+    assert "vs v1" in page.text_content("#coefficients thead")
     page.screenshot(path=str(tmp_path / "dashboard.png"), full_page=True)
     # the refusal itself is the only failed request
     assert problems == [f"Failed to load resource: {REFUSED_401}"], problems

@@ -86,8 +86,8 @@ function showSigma(row) {
 // ---- current version ---------------------------------------------------------------------------
 function renderCurrent() {
   const rec = state.current;
-  const body = $("coefficients").tBodies[0];
-  body.replaceChildren();
+  const box = $("coefficients");
+  box.replaceChildren();
   if (!rec) {
     $("version").textContent = "none yet";
     $("verdict").textContent = "";
@@ -107,30 +107,41 @@ function renderCurrent() {
   $("reasons").replaceChildren(...(rec.reasons || []).map((r) => el("li", {}, r)));
   renderNavImpact(doc.navigation_impact);
   const prev = state.previous ? new Map(flatten(state.previous.document).map((r) => [r.id, r])) : new Map();
-  $("change-head").textContent = state.previous ? `Change vs v${state.previous.version} (σ)` : "Change (σ)";
-  let group = null;
-  for (const row of flatten(doc)) {
-    const g = `${row.sensor} ${row.key}`;
-    if (g !== group) {
-      group = g;
-      body.append(el("tr", { className: "group" }, el("td", { colSpan: 6 }, `${row.sensor === "gyro" ? "Gyro" : "Accelerometer"} ${row.key}`)));
-    }
-    const p = prev.get(row.id);
-    let change = "-", cls = "num";
-    if (p && isNum(p.value) && isNum(row.value)) {
-      const s = Math.hypot(row.sigma || 0, p.sigma || 0);
-      if (s > 0) {
-        const z = (row.value - p.value) / s;
-        change = (z >= 0 ? "+" : "") + z.toFixed(2);
-        cls += Math.abs(z) > 6 ? " change-huge" : Math.abs(z) > 3 ? " change-big" : "";
+  const changeHead = state.previous ? `Δ vs v${state.previous.version} (σ)` : "Δ (σ)";
+  const rows = flatten(doc);
+  for (const sensor of ["gyro", "accel"]) {
+    const mine = rows.filter((r) => r.sensor === sensor);
+    if (!mine.length) continue;
+    const head = el("tr", {}, ...["Coefficient", "Value", "1σ", "Unit", changeHead, "Status"].map(
+      (h, i) => el("th", { className: [1, 2, 4].includes(i) ? "num" : "" }, h)));
+    const body = el("tbody");
+    let group = null;
+    for (const row of mine) {
+      if (row.key !== group) {
+        group = row.key;
+        body.append(el("tr", { className: "group" }, el("td", { colSpan: 6 }, `${sensor === "gyro" ? "Gyro" : "Accelerometer"} ${row.key}`)));
       }
+      body.append(coefficientRow(row, prev.get(row.id)));
     }
-    body.append(el("tr", {},
-      el("td", {}, row.label), el("td", { className: "num" }, showValue(row)),
-      el("td", { className: "num" }, showSigma(row)), el("td", {}, val(KEYS[row.key].unit, row.sensor)),
-      el("td", { className: cls }, change),
-      el("td", { className: `status-${row.status}` }, row.status || "-")));
+    box.append(el("div", { className: "table-wrap" }, el("table", { className: "coef" }, el("thead", {}, head), body)));
   }
+}
+
+function coefficientRow(row, p) {
+  let change = "-", cls = "num";
+  if (p && isNum(p.value) && isNum(row.value)) {
+    const s = Math.hypot(row.sigma || 0, p.sigma || 0);
+    if (s > 0) {
+      const z = (row.value - p.value) / s;
+      change = (z >= 0 ? "+" : "") + z.toFixed(2);
+      cls += Math.abs(z) > 6 ? " change-huge" : Math.abs(z) > 3 ? " change-big" : "";
+    }
+  }
+  return el("tr", {},
+    el("td", {}, row.label), el("td", { className: "num" }, showValue(row)),
+    el("td", { className: "num" }, showSigma(row)), el("td", {}, val(KEYS[row.key].unit, row.sensor)),
+    el("td", { className: cls }, change),
+    el("td", { className: `status-${row.status}` }, row.status || "-"));
 }
 
 function renderNavImpact(impact) {
@@ -242,7 +253,12 @@ function renderAdvice(advice) {
     items.push(el("li", { className: "pin" }, `A window with ${s.orientation} would pin ${s.pins.join(", ")}.`));
   }
   for (const n of advice.unresolved || []) items.push(el("li", { className: "none" }, `${n}: no single extra orientation pins it; add more varied windows.`));
-  for (const h of advice.unseeable || []) items.push(el("li", { className: "none" }, `${h.direction}: no orientation can show it (${h.reason}).`));
+  const byReason = new Map();
+  for (const h of advice.unseeable || []) byReason.set(h.reason, [...(byReason.get(h.reason) || []), h.direction]);
+  for (const [reason, dirs] of byReason) {
+    items.push(el("li", { className: "none" }, `No orientation can show ${dirs.length === 1 ? "this direction" : `these ${dirs.length} directions`}: ${reason}.`,
+      el("ul", {}, ...dirs.map((d) => el("li", { className: "mono" }, d)))));
+  }
   const head = (advice.weak || []).length || (advice.unseeable || []).length
     ? "Held or weakly seen in the current version:" : "Every coefficient is seen well by the stored windows.";
   box.replaceChildren(el("p", {}, head), el("ul", {}, ...items));
@@ -303,7 +319,7 @@ function renderHealth(h) {
     ["spooled", s.windows_spooled], ["dropped", s.windows_dropped],
     ["recalibrating", s.recalibrating === undefined ? "-" : s.recalibrating ? "yes" : "no"],
     ["last job", last ? `${last.status ?? last.state ?? "?"}` : "-"],
-    ["uptime", isNum(s.uptime_s) ? `${(s.uptime_s / 3600).toFixed(1)} h` : "-"],
+    ["uptime", isNum(s.uptime_s) ? (s.uptime_s < 3600 ? `${Math.floor(s.uptime_s / 60)} min` : `${(s.uptime_s / 3600).toFixed(1)} h`) : "-"],
   ];
   $("counters").replaceChildren(...counters.map(([k, v]) => el("div", {}, el("dt", {}, k),
     el("dd", {}, typeof v === "number" ? v.toLocaleString("en-GB") : v ?? "-"))));

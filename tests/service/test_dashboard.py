@@ -1,0 +1,61 @@
+"""The dashboard's routes and its orientation advice, without a browser."""
+
+from __future__ import annotations
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from recal.calibrate import CalibrationOptions, calibrate
+from recal.positions import Positions
+from recal.simulate import simulate_positions
+from service.api import create_app
+from service.capture_sim import kvh_like_truth
+from service.dashboard import plotly_js
+from service.dashboard.coverage import azimuth_elevation, gravity_directions, orientation_advice
+from service.publish import Publisher
+
+
+def test_page_assets_and_csp(sqlite_store, tmp_path):
+    client = TestClient(create_app(sqlite_store, Publisher(tmp_path / "c.json")))
+    page = client.get("/")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    csp = page.headers["content-security-policy"]
+    assert "script-src 'self';" in csp and "unsafe-eval" not in csp
+    assert "<script>" not in page.text  # no inline script: the CSP would block it
+    for ref in (
+        "dashboard/plotly.min.js",
+        "dashboard/static/app.js",
+        "dashboard/static/dashboard.css",
+    ):
+        assert ref in page.text
+        asset = client.get(f"/{ref}")
+        assert asset.status_code == 200 and len(asset.content) > 1000, ref
+    assert client.get("/dashboard/plotly.min.js").content == plotly_js().read_bytes()
+    assert "http" not in client.get("/dashboard/static/app.js").text  # no CDN, no other host
+    empty = client.get("/dashboard/coverage").json()
+    assert empty == {"windows": [], "version": None, "residuals": [], "advice": None}
+    assert "/" not in client.get("/openapi.json").json()["paths"]
+
+
+def test_gravity_direction_of_a_window():
+    # at rest the accelerometer reads +1 g along the up axis: gravity points the other way
+    down = gravity_directions(np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]))
+    assert np.allclose(down, [[0, 0, 1], [1, 0, 0]])
+    az, el = azimuth_elevation(down)
+    assert np.allclose(el, [90, 0]) and np.isclose(az[1], 0)
+
+
+def test_advice_names_the_orientation_that_pins_a_weak_coefficient():
+    truth = kvh_like_truth(1)
+    pos = simulate_positions(truth, "24", latitude_deg=50, seed=1)
+    down = gravity_directions(np.column_stack([pos.columns[f"accel_{a}"] for a in "xyz"]))
+    keep = down[:, 0] < 0.5  # no window with x down: K2x cannot be told from bx
+    sub = Positions.from_columns({k: v[keep] for k, v in pos.columns.items()})
+    doc = calibrate(sub, CalibrationOptions(latitude_deg=50)).to_json_dict()
+    assert "accel.quadratic.K2x" in doc["observability"]["held_directions"][-1]
+    advice = orientation_advice(sub, doc)
+    assert advice["weak"] == ["accel.quadratic.K2x"]
+    assert advice["suggestions"] == [{"orientation": "x down", "pins": ["accel.quadratic.K2x"]}]
+    assert advice["unresolved"] == []
+    # the rotations of the frames: no orientation shows them, and the advice says why
+    assert advice["unseeable"] and all("rotation" in h["reason"] for h in advice["unseeable"])
