@@ -88,8 +88,8 @@ def _toml(value: Any) -> str:
         return "unset"
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, str | list):
-        return json.dumps(value)  # a TOML basic string or array of them
+    if isinstance(value, str | list | tuple):
+        return json.dumps(value)  # a TOML basic string or array
     return repr(value)
 
 
