@@ -61,7 +61,9 @@ def test_debug_after_the_subcommand_shows_the_traceback(
     assert "Traceback" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("command", ["demo", "serve", "db"])
+@pytest.mark.parametrize(
+    "command", ["demo", "serve", "db", "simulate", "positions", "record", "navigate"]
+)
 def test_every_option_has_a_help_text(command: str) -> None:
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     parsers = [sub.choices[command]]

@@ -64,7 +64,13 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="csv: the file's own column names for the standard ones, e.g. "
         "accel_x=acc_x,accel_y=acc_y,accel_z=acc_z,time_s=t",
     )
-    p.add_argument("-o", "--output", required=True, metavar="POSITIONS.csv")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="POSITIONS.csv",
+        help="the positions file to write (conventions section 4): one row per static window",
+    )
     p.add_argument(
         "--report",
         metavar="OUT.html",

@@ -58,7 +58,11 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "vessel: hull-fixed, heading-only (default 24)",
     )
     p.add_argument(
-        "--positions", type=int, default=None, help="number of positions (random, vessel)"
+        "--positions",
+        type=int,
+        default=None,
+        metavar="N",
+        help="number of positions: random and vessel designs (default 24); the 24 design has 24",
     )
     p.add_argument(
         "--truth", metavar="FILE", help="truth coefficients JSON (conventions section 5)"
@@ -68,10 +72,23 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="EFFECT[,EFFECT]",
         help="catalogue effects present in the data but not in the seed model",
     )
-    p.add_argument("--sensor", choices=("gyro", "accel", "both"), default="both")
+    p.add_argument(
+        "--sensor",
+        choices=("gyro", "accel", "both"),
+        default="both",
+        help="triads whose columns are written (default both)",
+    )
     p.add_argument("--latitude", type=float, default=45.0, help="site latitude, deg (default 45)")
-    p.add_argument("--height", type=float, default=0.0, help="site height, m")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--height", type=float, default=0.0, help="site height above the ellipsoid, m (default 0)"
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="random seed of the orientations and the noise; the same seed gives the same file "
+        "(default 0)",
+    )
     p.add_argument(
         "--arw",
         type=float,
@@ -105,7 +122,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=f"sample rate, Hz; with --capture the device's data rate (default "
         f"{DEFAULT_RATE_HZ:g}; {TRAJECTORY_RATE_HZ:g} with --trajectory)",
     )
-    p.add_argument("--temp-start", type=float, default=DEFAULT_TEMP_START_C, help="degC")
+    p.add_argument(
+        "--temp-start",
+        type=float,
+        default=DEFAULT_TEMP_START_C,
+        help=f"temperature at the start of the session, degC (default {DEFAULT_TEMP_START_C:g})",
+    )
     p.add_argument(
         "--temp-slope",
         type=float,
