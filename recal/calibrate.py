@@ -86,6 +86,9 @@ class CalibrationOptions:
     t0_c: float = 25.0
     slews: Slews | None = None  # gyro increments between the windows (recal.slews), or None
     known_rotations: KnownRotations | None = None  # commanded rotations of some slews
+    #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
+    #: a missing effect can drag the baseline fit there, and the candidates must still be tried
+    refuse_at_solution: bool = True
 
 
 @dataclass
@@ -646,7 +649,9 @@ def calibrate(
             lm = solve_lm(problem, theta, T)
             theta, evaluations = lm.theta, evaluations + lm.evaluations
     info_min = INFO_MIN if report.noise_decided else 0.0
-    report = _decided(analyze(problem, theta, typical, info_min=info_min), "at the solution")
+    report = analyze(problem, theta, typical, info_min=info_min)
+    if opt.refuse_at_solution:
+        report = _decided(report, "at the solution")
     T = typical[:, None] * report.basis
     cov, chi2_red = covariance(problem, theta, T)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))

@@ -16,6 +16,24 @@ All candidate fits share the baseline's residual weights, so their chi^2 values 
 greedy ``suggested_effects`` adds the best significant candidate and repeats until none is left.
 A candidate the positions cannot show (e.g. a temperature term at constant temperature) is
 listed with ``identifiable: false`` and the reason.
+
+Two guards against the right residual for the wrong reason:
+
+* ``core_shift``: how far adding the effect moves the seed coefficients (scale, bias,
+  misalignment) in units of their 1-sigma in the current model, and ``trade_off``: the largest
+  such shift with the correlation between that coefficient and the effect in the extended
+  model. A large shift of a strongly correlated coefficient means the two trade off in these
+  positions: the residual falls, but the coefficient takes whatever the effect's model says.
+  The candidate then carries a ``warning`` and ``advice`` (what would separate them).
+* ``confounded_with``: other candidates whose fitted signatures (the change each makes to the
+  whitened residual) are correlated, with the correlation and the evidence ratio
+  exp(-(BIC_other - BIC_self)/2); ``similar_to`` keeps those above 0.9 (cannot be told apart).
+
+The baseline is never refused for its design at the solution: a missing effect can drag the
+fit into a degenerate valley (the gyro-only norm fit has one at infinite scale, where every rate
+collapses onto a constant vector of norm Omega). Such a fit is recognised by its rank falling
+at the solution, and the baseline is then re-fitted from the candidates' non-degenerate
+solutions. ``verdict`` says plainly when the residual stays above the noise floor.
 """
 
 from __future__ import annotations
@@ -32,7 +50,7 @@ from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.model import ParameterLayout
 from recal.observability import analyze
-from recal.plugins import bind_context, values_by_term
+from recal.plugins import bind_context, site_context, values_by_term
 from recal.positions import Positions
 from recal.problem import Problem
 from recal.terms import Term, catalogue_terms
@@ -50,6 +68,12 @@ class Fit:
     rank: int
     rss: float  # sum of squared whitened residuals (chi^2)
     verdict: str
+    sd: np.ndarray | None = None  # 1-sigma per parameter at the solution (NaN where held)
+    cov: np.ndarray | None = None  # covariance at the solution
+    degenerate: bool = False  # the rank fell at the solution (a degenerate valley)
+
+    def residual(self) -> np.ndarray:
+        return self.problem.residuals(self.theta[None])[0]
 
 
 @dataclass
@@ -67,6 +91,17 @@ class Candidate:
     parameters: dict[str, float] = field(default_factory=dict)
     uncertainty: dict[str, float] = field(default_factory=dict)
     similar_to: list[str] = field(default_factory=list)
+    #: seed coefficient -> shift in units of its current 1-sigma (largest three)
+    core_shift: dict[str, float] = field(default_factory=dict)
+    #: {"coefficient", "shift_sigma", "correlation"} of the largest shift, or None
+    trade_off: dict[str, Any] | None = None
+    warning: str = ""
+    advice: str = ""
+    #: [{"effect", "signature_correlation", "evidence_ratio", "advice"}]
+    confounded_with: list[dict[str, Any]] = field(default_factory=list)
+    #: change of the whitened residual the effect makes (for the confounding measure)
+    signature: np.ndarray | None = None
+    needs: frozenset[str] = frozenset()
     #: Per-position raw residual of each invariant with the effect added (for the report's
     #: charts; not in the JSON).
     residuals_after: dict[str, np.ndarray] = field(default_factory=dict)
@@ -93,6 +128,11 @@ class Candidate:
             "parameters": self.parameters,
             "uncertainty": {k: num(v) for k, v in self.uncertainty.items()},
             "similar_to": self.similar_to,
+            "core_shift": self.core_shift,
+            "trade_off": self.trade_off,
+            "warning": self.warning,
+            "advice": self.advice,
+            "confounded_with": self.confounded_with,
         }
 
 
@@ -106,9 +146,21 @@ class Diagnosis:
     chi2_red: float  # baseline model
     final_chi2_red: float  # with the suggested effects added
     final_residuals: dict[str, np.ndarray]  # invariant -> per-position residual, suggested model
+    verdict: str = ""
+    model_fails: bool = False
+    #: the model ladder: baseline, then each suggested effect added in turn
+    ladder: list[dict[str, Any]] = field(default_factory=list)
+    #: variable -> correlation with the final whitened residual (|r| largest first)
+    residual_correlations: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
+            "verdict": self.verdict,
+            "model_fails": self.model_fails,
+            "ladder": self.ladder,
+            "residual_correlations": self.residual_correlations,
+            "notes": self.notes,
             "invariants": self.invariants,
             "candidates": [c.to_json_dict() for c in self.candidates],
             "suggested_effects": self.suggested_effects,
@@ -116,7 +168,8 @@ class Diagnosis:
             "chi2_red": _finite(self.chi2_red),
             "chi2_red_with_suggested": _finite(self.final_chi2_red),
             "noise_known": self.baseline.problem.noise_known,
-            "method": "LM fits with the baseline's residual weights; F-test and BIC per candidate",
+            "method": "LM fits with the baseline's residual weights; F-test and BIC per "
+            "candidate; confounding from the correlation of fitted signatures",
             "alpha": ALPHA,
         }
 
@@ -126,8 +179,16 @@ def _finite(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
-def _fit(base: CalibrationResult, opt: CalibrationOptions, effects: Sequence[str]) -> Fit:
-    """Fit the model with ``effects`` on the baseline's positions, prior and residual weights."""
+def _fit(
+    base: CalibrationResult,
+    opt: CalibrationOptions,
+    effects: Sequence[str],
+    start: dict[str, np.ndarray] | None = None,
+    refit: bool = True,
+) -> Fit:
+    """Fit the model with ``effects`` on the baseline's positions, prior and residual weights,
+    from ``start`` (term name -> values; default the baseline's solution), with the covariance
+    and the rank at the solution."""
     positions = base.problem.positions
     fresh = build_models(base.problem.sensors, effects, opt.plugin_terms, opt.t0_c)
     fresh = bind_context(fresh, positions, values_by_term(base.layout, base.theta_prior),
@@ -139,7 +200,7 @@ def _fit(base: CalibrationResult, opt: CalibrationOptions, effects: Sequence[str
         for b, m in zip(base.problem.models, fresh, strict=True)
     )
     layout = ParameterLayout(models)
-    start = {n: base.theta[sl] for n, sl in base.layout.term_slices().items()}
+    start = start if start is not None else values_by_term(base.layout, base.theta)
     theta0 = np.concatenate(
         [np.asarray(start.get(t.name, t.neutral), float) for m in models for t in m.terms]
     )
@@ -152,9 +213,13 @@ def _fit(base: CalibrationResult, opt: CalibrationOptions, effects: Sequence[str
     report = analyze(problem, theta0, typical)
     if report.verdict == "insufficient":
         return Fit(tuple(effects), problem, theta0, report.rank, float("nan"), report.verdict)
-    lm = solve_lm(problem, theta0, typical[:, None] * report.basis)
-    r = problem.residuals(lm.theta[None])[0]
-    return Fit(tuple(effects), problem, lm.theta, report.rank, float(r @ r), report.verdict)
+    theta = solve_lm(problem, theta0, typical[:, None] * report.basis).theta if refit else theta0
+    r = problem.residuals(theta[None])[0]
+    at = analyze(problem, theta, typical)
+    cov, _ = covariance(problem, theta, typical[:, None] * at.basis)
+    sd = np.where(at.estimated, np.sqrt(np.clip(np.diag(cov), 0, None)), np.nan)
+    return Fit(tuple(effects), problem, theta, report.rank, float(r @ r), report.verdict,
+               sd, cov, degenerate=at.rank < report.rank)  # fmt: skip
 
 
 def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
@@ -192,7 +257,7 @@ def diagnose(
     max_rounds: int = 4,
 ) -> Diagnosis:
     """Rank candidate effects by how much of the misfit they explain (see module doc)."""
-    opt = replace(options or CalibrationOptions(), method="lm")
+    opt = replace(options or CalibrationOptions(), method="lm", refuse_at_solution=False)
     base = calibrate(positions, opt)
     sensors = base.problem.sensors
     pool = {t.name: t for t in default_candidates(positions, sensors, opt.t0_c)}
@@ -206,10 +271,14 @@ def diagnose(
     for name in chosen:
         pool.pop(name, None)
     n = base.problem.n_residuals
+    notes: list[str] = []
     fit0 = _fit(base, opt, chosen)
+    if fit0.degenerate or base.observability.verdict == "insufficient":
+        fit0 = _rescue(base, opt, chosen, list(pool), fit0, notes)
     ranked: list[Candidate] = []
     suggested: list[str] = []
     current = fit0
+    ladder = [_rung("baseline", "", current, None, n)]
     for round_ in range(max_rounds):
         scored = [
             _score(current, base, opt, chosen + suggested, t, n, len(pool)) for t in pool.values()
@@ -221,11 +290,13 @@ def diagnose(
             break
         suggested.append(best.effect)
         pool.pop(best.effect)
-        current = _fit(base, opt, chosen + suggested)
+        start = values_by_term(current.problem.layout, current.theta)
+        previous, current = current, _fit(base, opt, chosen + suggested, start=start)
+        ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n))
     ranked.sort(key=lambda c: (not c.identifiable, np.nan_to_num(c.delta_bic, nan=np.inf)))
-    _mark_similar(ranked)
+    _confounding(ranked)
     final_raw = current.problem.raw_residuals(current.theta[None])
-    return Diagnosis(
+    d = Diagnosis(
         baseline=base,
         invariants=_invariant_rows(fit0),
         candidates=ranked,
@@ -234,7 +305,156 @@ def diagnose(
         chi2_red=fit0.rss / max(n - fit0.rank, 1),
         final_chi2_red=current.rss / max(n - current.rank, 1),
         final_residuals={k: v[0] for k, v in final_raw.items()},
+        ladder=ladder,
+        notes=notes,
     )
+    _conclude(d, current, n)
+    return d
+
+
+def _rescue(
+    base: CalibrationResult,
+    opt: CalibrationOptions,
+    chosen: list[str],
+    pool: list[str],
+    fit0: Fit,
+    notes: list[str],
+) -> Fit:
+    """A baseline out of a degenerate valley: the baseline model re-fitted from the seed
+    coefficients of every candidate's non-degenerate fit; the best such fit, else ``fit0``."""
+    starts = [values_by_term(base.layout, base.theta_prior)]
+    for name in pool:
+        try:
+            f = _fit(
+                base, opt, chosen + [name], start=values_by_term(base.layout, base.theta_prior)
+            )
+        except RecalInputError:
+            continue
+        if np.isfinite(f.rss) and not f.degenerate:
+            starts.append(values_by_term(f.problem.layout, f.theta))
+    fits = [_fit(base, opt, chosen, start=s) for s in starts]
+    good = [f for f in fits if np.isfinite(f.rss) and not f.degenerate]
+    if good:
+        notes.append(
+            "the baseline fit fell into a degenerate solution (the rank falls at the solution, "
+            "e.g. scale factors running away); it was re-fitted from the candidates' solutions"
+        )
+        return min(good, key=lambda f: f.rss)
+    # The baseline model has no plausible optimum (only the degenerate valley): judge it where
+    # the candidates' plausible fits put the seed coefficients, without the effect.
+    held = [_fit(base, opt, chosen, start=s, refit=False) for s in starts[1:]]
+    held = [f for f in held if np.isfinite(f.rss) and not f.degenerate]
+    if not held:
+        notes.append("the baseline fit is degenerate (its rank falls at the solution) from "
+                     "every start, and so is every candidate's: the model fails these data")  # fmt: skip
+        return fit0
+    notes.append(
+        "the baseline model has no plausible fit: from every start it runs into a degenerate "
+        "solution (scale factors running away); it is judged at the seed coefficients of the "
+        "candidates' fits with the effect removed, which can only overstate its misfit"
+    )
+    return min(held, key=lambda f: f.rss)
+
+
+def _rung(label: str, effect: str, fit: Fit, previous: Fit | None, n: int) -> dict[str, Any]:
+    """One step of the model ladder: chi2 ratio per invariant (RMS / noise floor) and the
+    change of BIC from the step before."""
+    raw = fit.problem.raw_residuals(fit.theta[None])
+    ratio = {}
+    for k, v in raw.items():
+        if fit.problem.noise_known_for(k):
+            floor = float(np.sqrt(np.mean(fit.problem.sigma[k] ** 2)))
+            ratio[k] = float(np.sqrt(np.mean(v[0] ** 2)) / floor)
+    bic = fit.rss + fit.rank * np.log(n)
+    step = None if previous is None else bic - (previous.rss + previous.rank * np.log(n))
+    return {
+        "model": label,
+        "effect": effect,
+        "chi2_red": _finite(fit.rss / max(n - fit.rank, 1)),
+        "rms_over_floor": ratio,
+        "delta_bic": None if step is None else _finite(step),
+        "directions": fit.rank,
+    }
+
+
+def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
+    """The verdict: fits to the floor, or the model still fails (and where, and with what)."""
+    dof = max(n - final.rank, 1)
+    d.residual_correlations = _residual_correlations(final, d.baseline)
+    added = ", ".join(d.suggested_effects)
+    if not final.problem.noise_known:
+        d.verdict = (
+            f"suggested: {added} (chi2_red {d.chi2_red:.3g} -> {d.final_chi2_red:.3g})"
+            if added
+            else "no candidate effect is significant"
+        ) + "; the window noise is unknown, so whether the residual reaches the floor is unknown"
+        return
+    p_fit = float(stats.chi2.sf(final.rss, dof))
+    d.model_fails = p_fit < ALPHA
+    traded = [c.effect for c in d.candidates if c.effect in d.suggested_effects and c.warning]
+    caveat = (
+        f"; but {', '.join(traded)} trades off with the seed coefficients (see the warning): "
+        "the residual may fall for the wrong reason"
+        if traded
+        else ""
+    )
+    if not d.model_fails:
+        d.verdict = (
+            f"with {added} the residual is at the noise floor (chi2_red {d.chi2_red:.3g} -> "
+            f"{d.final_chi2_red:.3g})"
+            if added
+            else f"the model fits to the noise floor (chi2_red {d.chi2_red:.3g}); no effect missing"
+        ) + caveat
+        return
+    worst = np.argsort(-np.abs(final.residual()))[:3]
+    m = final.problem.M
+    per = ", ".join(str(int(i) % m) for i in worst)
+    corr = ", ".join(f"{k} (r = {v:+.2f})" for k, v in list(d.residual_correlations.items())[:3])
+    model = f"with {added}" if added else "the seed model"
+    d.verdict = (
+        f"the model still fails: chi2_red {d.final_chi2_red:.3g} {model} (p = {p_fit:.2g} "
+        "against the noise floor) and no candidate explains the rest; worst positions "
+        f"{per}"
+        + (f"; the residual correlates with {corr}" if corr else "")
+        + "; an effect outside the catalogue may be missing: write it as a --plugin"
+    )
+
+
+def _residual_correlations(fit: Fit, base: CalibrationResult) -> dict[str, float]:
+    """Pearson r of each invariant's per-position whitened residual with the variables that
+    could drive a missing effect (temperature, its rate, time, the gravity direction)."""
+    pos = fit.problem.positions
+    cols = pos.columns
+    drivers: dict[str, np.ndarray] = {}
+    for k in ("temperature_c", "temperature_rate_c_per_h"):
+        if k in cols:
+            drivers[k] = np.asarray(cols[k], float)
+    if "start_s" in cols and "end_s" in cols:
+        drivers["time_h"] = 0.5 * (cols["start_s"] + cols["end_s"]) / 3600.0
+    site = site_context(pos, values_by_term(base.layout, base.theta), fit.problem.latitude_deg,
+                        fit.problem.height_m)  # fmt: skip
+    for k in ("gravity_direction", "north"):
+        if k in site:
+            drivers.update({f"{k}_{a}": site[k][:, j] for j, a in enumerate("xyz")})
+    raw = fit.problem.raw_residuals(fit.theta[None])
+    out: dict[str, float] = {}
+    for inv, v in raw.items():
+        if inv not in ("gyro_norm", "accel_norm", "dot"):
+            continue
+        w = v[0] / fit.problem.sigma[inv]
+        for k, x in drivers.items():
+            if np.ptp(x) > 0 and np.ptp(w) > 0:
+                out[f"{inv} vs {k}"] = float(np.corrcoef(w, x)[0, 1])
+    return dict(sorted(out.items(), key=lambda kv: -abs(kv[1])))
+
+
+#: Shift of a seed coefficient, in its current 1-sigma, and correlation with the effect above
+#: which the candidate carries a trade-off warning.
+SHIFT_WARN_SIGMA = 5.0
+CORRELATION_WARN = 0.9
+#: Signature correlation above which two candidates are listed as confounded / the same.
+CONFOUNDED = 0.7
+SAME = 0.9
 
 
 def _score(
@@ -246,14 +466,22 @@ def _score(
     n: int,
     n_candidates: int,
 ) -> Candidate:
-    cand = Candidate(term.name, term.explanation, identifiable=True)
+    cand = Candidate(term.name, term.explanation, identifiable=True, needs=frozenset(term.needs))
     try:
-        fit = _fit(base, opt, effects + [term.name])
+        fit = _fit(base, opt, effects + [term.name], start=values_by_term(
+            current.problem.layout, current.theta))  # fmt: skip
     except RecalInputError as exc:
         msg, src = str(exc), f"{base.problem.positions.source}: "
         cand.identifiable, cand.reason = False, msg[len(src) :] if msg.startswith(src) else msg
         return cand
     dk = fit.rank - current.rank
+    if fit.degenerate:
+        cand.identifiable = False
+        cand.reason = (
+            "its fit is degenerate (the rank falls at the solution: coefficients run away), so "
+            "it does not describe these data"
+        )
+        return cand
     if fit.verdict == "insufficient" or dk <= 0:
         cand.identifiable = False
         cand.reason = (
@@ -270,6 +498,7 @@ def _score(
     excess = current.rss - noise_power
     gain = current.rss - fit.rss
     cand.explained_fraction = float(np.clip(gain / excess, 0.0, 1.0)) if excess > 0 else 0.0
+    cand.signature = current.residual() - fit.residual()
     raw = fit.problem.raw_residuals(fit.theta[None])
     cand.rms_after = {k: float(np.sqrt(np.mean(v[0] ** 2))) for k, v in raw.items()}
     cand.residuals_after = {k: v[0] for k, v in raw.items()}
@@ -279,16 +508,109 @@ def _score(
         cand.drivers = {"specific_force_g": fit.problem._specific_force(fit.theta)}
     sl = fit.problem.layout.term_slices()[term.name]
     cand.parameters = dict(zip(term.params, map(float, fit.theta[sl]), strict=True))
-    typical = fit.problem.layout.typical(fit.theta)
-    rep = analyze(fit.problem, fit.theta, typical)
-    cov, _ = covariance(fit.problem, fit.theta, typical[:, None] * rep.basis)
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))[sl]
-    cand.uncertainty = dict(zip(term.params, map(float, sd), strict=True))
+    assert fit.sd is not None
+    cand.uncertainty = dict(zip(term.params, map(float, fit.sd[sl]), strict=True))
+    _trade_off(cand, current, fit, sl)
     return cand
 
 
-def _mark_similar(ranked: list[Candidate]) -> None:
-    """Candidates whose improvement is within 2 BIC units of each other cannot be told apart."""
-    ok = [c for c in ranked if c.identifiable and c.delta_bic < 0]
-    for c in ok:
-        c.similar_to = [o.effect for o in ok if o is not c and abs(o.delta_bic - c.delta_bic) < 2.0]
+def _core_indices(names: list[str]) -> list[int]:
+    core = (".scale.", ".bias.", ".misalignment.")
+    return [i for i, nm in enumerate(names) if nm.split(".", 1)[0] in ("gyro", "accel")
+            and any(c in nm for c in core) and nm.count(".") == 2]  # fmt: skip
+
+
+def _trade_off(cand: Candidate, current: Fit, fit: Fit, sl: slice) -> None:
+    """How far the effect moves the seed coefficients (in their current 1-sigma) and whether
+    it trades off with them in the extended model (module doc)."""
+    names0, names1 = current.problem.layout.names, fit.problem.layout.names
+    where1 = {nm: i for i, nm in enumerate(names1)}
+    if current.sd is None or fit.cov is None:
+        return
+    shifts: dict[str, float] = {}
+    for i in _core_indices(names0):
+        j = where1.get(names0[i])
+        sd0 = current.sd[i]
+        if j is None or not np.isfinite(sd0) or sd0 <= 0:
+            continue
+        shifts[names0[i]] = float((fit.theta[j] - current.theta[i]) / sd0)
+    if not shifts:
+        return
+    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:3]
+    cand.core_shift = {k: shifts[k] for k in top}
+    cov = fit.cov
+    eff = np.arange(cov.shape[0])[sl]
+    name = top[0]
+    j = where1[name]
+    corr = _multiple_correlation(cov, j, eff)
+    cand.trade_off = {"coefficient": name, "shift_sigma": shifts[name], "correlation": corr}
+    if abs(shifts[name]) >= SHIFT_WARN_SIGMA and abs(corr) >= CORRELATION_WARN:
+        cand.advice = _core_advice(cand.needs, cand.effect)
+        cand.warning = (
+            f"adding {cand.effect} moves {name} by {abs(shifts[name]):.0f} sigma: they trade off "
+            f"in these positions (multiple correlation {corr:.2f}), so the fit is only as right as the "
+            f"effect's model; to separate them: {cand.advice}"
+        )
+
+
+def _multiple_correlation(cov: np.ndarray, j: int, eff: np.ndarray) -> float:
+    """Multiple correlation of parameter ``j`` with the parameters ``eff`` (how much of j's
+    uncertainty the effect explains): sqrt(c_je C_ee^-1 c_ej / c_jj), in [0, 1]."""
+    c_je = cov[j, eff]
+    C_ee = cov[np.ix_(eff, eff)]
+    if cov[j, j] <= 0:
+        return 0.0
+    r2 = float(c_je @ np.linalg.pinv(C_ee, rcond=1e-12) @ c_je / cov[j, j])
+    return float(np.sqrt(np.clip(r2, 0.0, 1.0)))
+
+
+def _core_advice(needs: frozenset[str], effect: str) -> str:
+    """What would separate an effect from the seed coefficients, by what drives it."""
+    if needs & {"temperature_c", "temperature_rate_c_per_h"}:
+        return "a temperature swing during the session (a cycle, not a ramp), positions repeated at several temperatures"
+    if "time_h" in needs:
+        return "repeat the first positions at the end of the session"
+    if effect.endswith("scale_asymmetry"):
+        return "positions with each axis both up and down"
+    return (
+        "a second site latitude (it changes the angle between gravity and Earth rate), or a "
+        "design with more orientations about each axis"
+    )
+
+
+def _pair_advice(a: Candidate, b: Candidate) -> str:
+    """What would tell two confounded candidates apart, by what drives them."""
+    keys = a.needs | b.needs
+    if {"temperature_c", "time_h"} <= keys or {"temperature_rate_c_per_h", "time_h"} <= keys:
+        return "add a temperature swing (a cycle, not a ramp): temperature and time then differ"
+    if {"temperature_c", "temperature_rate_c_per_h"} <= keys:
+        return "hold some positions at steady temperature: level and rate then differ"
+    if a.needs == b.needs and "temperature_c" in keys:
+        return "a wider temperature range"
+    return "more orientations, or a second site latitude"
+
+
+def _confounding(ranked: list[Candidate]) -> None:
+    """Correlation of the candidates' fitted signatures, evidence ratios and advice (module
+    doc); replaces a hard cut on the BIC difference."""
+    ok = [c for c in ranked if c.identifiable and c.signature is not None and c.delta_bic < 0]
+    if len(ok) < 2:
+        return
+    S = np.array([c.signature for c in ok])
+    norm = np.linalg.norm(S, axis=1)
+    C = (S @ S.T) / np.maximum(np.outer(norm, norm), 1e-300)
+    for i, c in enumerate(ok):
+        for j, o in enumerate(ok):
+            if i == j or abs(C[i, j]) < CONFOUNDED:
+                continue
+            ratio = float(np.exp(np.clip(-(o.delta_bic - c.delta_bic) / 2, -700, 700)))
+            c.confounded_with.append(
+                {
+                    "effect": o.effect,
+                    "signature_correlation": float(C[i, j]),
+                    "evidence_ratio": ratio,
+                    "advice": _pair_advice(c, o),
+                }
+            )
+            if abs(C[i, j]) >= SAME:
+                c.similar_to.append(o.effect)

@@ -130,13 +130,20 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         dbic = "-" if c["delta_bic"] is None else f"{c['delta_bic']:.1f}"
         p = "-" if c["p_value"] is None else f"{c['p_value']:.2g}"
         mark = "<b>yes</b>" if c["significant"] else "no"
-        note = esc(c["reason"]) or esc(
-            ", ".join(c["similar_to"]) and "cannot be told apart from " + ", ".join(c["similar_to"])
+        note = esc(c["reason"]) or "; ".join(
+            f"confounded with {esc(o['effect'])} (signature correlation "
+            f"{o['signature_correlation']:+.2f}, evidence ratio {o['evidence_ratio']:.3g}): "
+            f"{esc(o['advice'])}"
+            for o in c["confounded_with"]
         )
+        if c["warning"]:
+            note += f"<br><b>warning:</b> {esc(c['warning'])}"
+        t = c["trade_off"]
+        shift = f"{abs(t['shift_sigma']):.1f}&sigma; {esc(t['coefficient'])}" if t else "-"
         cands.append(
             f"<tr><td>{esc(c['effect'])}</td><td>{dbic}</td><td>{p}</td><td>{mark}</td>"
-            f"<td>{c['explained_fraction']:.2f}</td><td>{esc(c['explanation'])}</td>"
-            f"<td>{note}</td></tr>"
+            f"<td>{c['explained_fraction']:.2f}</td><td>{shift}</td>"
+            f"<td>{esc(c['explanation'])}</td><td>{note}</td></tr>"
         )
     plots = []
     problem = d.baseline.problem
@@ -178,9 +185,14 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         if d.suggested_effects
         else f"No candidate effect is significant; chi2_red {doc['chi2_red']:.3g}."
     )
+    verdict_cls = "color:#c0392b" if d.model_fails else ""
     return html_page(
         title,
         f"""<p>{suggestion}</p>
+<p style="{verdict_cls}"><b>Verdict:</b> {esc(d.verdict)}</p>
+{_notes_html(d)}
+{_ladder_html(doc)}
+{_parameters_html(d)}
 <h2>Invariants against their noise floor</h2>
 <table><tr><th>invariant</th><th>RMS</th><th>noise floor</th><th>ratio</th><th>unit</th>
 <th>worst positions</th></tr>{"".join(rows)}</table>
@@ -188,14 +200,66 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
 <p>delta BIC &lt; 0 means the effect earns its parameters; significant: F-test p &lt;
 {doc["alpha"]} (Bonferroni-corrected) and delta BIC &lt; 0; explained: share of the residual power
 above the noise floor that the effect removes.</p>
+<p>Core shift: the largest move of a seed coefficient (scale, bias, misalignment) when the
+effect is added, in that coefficient's 1&sigma; without it. A large shift of a coefficient the
+effect is strongly correlated with is warned about: they trade off in these positions.
+Confounded: the changes two candidates make to the residual are correlated (1: the same);
+the evidence ratio is exp(-(BIC<sub>other</sub> - BIC<sub>this</sub>)/2).</p>
 <table><tr><th>effect</th><th>delta BIC</th><th>p</th><th>significant</th><th>explained</th>
-<th>physics</th><th>note</th></tr>{"".join(cands)}</table>
+<th>core shift</th><th>physics</th><th>note</th></tr>{"".join(cands)}</table>
 <h2>Residual per position</h2>
 <p>Bars: each position's residual; shaded: the noise band (&plusmn;1&sigma; of each position).
 A zoomed panel follows when the current model's scale hides the corrected one.</p>
 {"".join(plots)}
 {driver_part}
 """,
+    )
+
+
+def _notes_html(d: Diagnosis) -> str:
+    items = [f"<li>{html.escape(n)}</li>" for n in d.notes]
+    items += [f"<li>{html.escape(k)}: r = {v:+.2f}</li>"
+              for k, v in list(d.residual_correlations.items())[:5] if d.model_fails]  # fmt: skip
+    return f"<ul>{''.join(items)}</ul>" if items else ""
+
+
+def _ladder_html(doc: dict) -> str:
+    """Baseline, then each suggested effect in turn: chi2_red, RMS / floor per invariant and
+    the change of BIC at each step."""
+    names = sorted({k for r in doc["ladder"] for k in r["rms_over_floor"]})
+    head = "".join(f"<th>{html.escape(n)} RMS/floor</th>" for n in names)
+    rows = []
+    for r in doc["ladder"]:
+        cells = "".join(
+            f"<td>{r['rms_over_floor'][n]:.2f}</td>" if n in r["rms_over_floor"] else "<td>-</td>"
+            for n in names
+        )
+        chi2 = "-" if r["chi2_red"] is None else f"{r['chi2_red']:.3g}"
+        step = "-" if r["delta_bic"] is None else f"{r['delta_bic']:.1f}"
+        rows.append(f"<tr><td>{html.escape(r['model'])}</td><td>{chi2}</td>{cells}"
+                    f"<td>{step}</td></tr>")  # fmt: skip
+    return (
+        "<h2>Model ladder</h2><table><tr><th>model</th><th>chi2_red</th>"
+        f"{head}<th>delta BIC of the step</th></tr>{''.join(rows)}</table>"
+    )
+
+
+def _parameters_html(d: Diagnosis) -> str:
+    """Fitted parameters of each significant candidate with their 1-sigma."""
+    rows = []
+    for c in d.candidates:
+        if not (c.significant or c.effect in d.suggested_effects):
+            continue
+        for k, v in c.parameters.items():
+            sd = c.uncertainty.get(k, float("nan"))
+            rows.append(f"<tr><td>{html.escape(c.effect)}</td><td>{html.escape(k)}</td>"
+                        f"<td>{v:.5g}</td><td>{sd:.2g}</td></tr>")  # fmt: skip
+    if not rows:
+        return ""
+    return (
+        "<h2>Fitted effect parameters</h2><p>Each significant candidate fitted on top of the "
+        "current model, with its Gauss-Newton 1&sigma;.</p><table><tr><th>effect</th>"
+        f"<th>parameter</th><th>value</th><th>1&sigma;</th></tr>{''.join(rows)}</table>"
     )
 
 

@@ -59,18 +59,29 @@ def format_diagnosis(d: Diagnosis) -> str:
         lines.append(f"{inv['name']:12s} {inv['rms']:11.4g} {floor:>12s} {ratio:>7s}  "
                      f"[{inv['unit']}]")  # fmt: skip
     lines += ["", f"{'candidate effect':30s} {'dBIC':>10s} {'p':>9s} {'signif.':>8s} "
-              f"{'explained':>9s}"]  # fmt: skip
+              f"{'explained':>9s} {'core shift':>11s}"]  # fmt: skip
     for c in doc["candidates"]:
         if not c["identifiable"]:
             lines.append(f"{c['effect']:30s} {'-':>10s} {'-':>9s} {'-':>8s} {'-':>9s}  "
                          f"({c['reason']})")  # fmt: skip
             continue
+        t = c["trade_off"]
+        shift = f"{abs(t['shift_sigma']):.1f}s {t['coefficient']}" if t else "-"
         similar = f"  (same as {', '.join(c['similar_to'])})" if c["similar_to"] else ""
         lines.append(
             f"{c['effect']:30s} {c['delta_bic']:10.1f} {c['p_value']:9.2g} "
-            f"{'YES' if c['significant'] else 'no':>8s} {c['explained_fraction']:9.2f}{similar}"
+            f"{'YES' if c['significant'] else 'no':>8s} {c['explained_fraction']:9.2f} "
+            f"{shift:>11s}{similar}"
         )
     lines.append("")
+    if len(doc["ladder"]) > 1:
+        lines.append("model ladder:")
+        for r in doc["ladder"]:
+            ratios = ", ".join(f"{k} {v:.2f}" for k, v in r["rms_over_floor"].items())
+            step = "" if r["delta_bic"] is None else f", dBIC {r['delta_bic']:.1f}"
+            chi2 = "n/a" if r["chi2_red"] is None else f"{r['chi2_red']:.3g}"
+            lines.append(f"  {r['model']:32s} chi2_red {chi2}{step}  (RMS/floor: {ratios})")
+        lines.append("")
     if d.suggested_effects:
         eff = ",+".join(d.suggested_effects)
         lines.append(f"suggested: recal calibrate ... --effects +{eff}   "
@@ -78,6 +89,25 @@ def format_diagnosis(d: Diagnosis) -> str:
         for c in d.candidates:
             if c.effect in d.suggested_effects:
                 lines.append(f"  {c.effect}: {c.explanation}")
-    else:
-        lines.append(f"no candidate effect is significant (chi2_red {doc['chi2_red']:.3g})")
+                sd = ", ".join(f"{k} = {v:.4g} +- {c.uncertainty.get(k, float('nan')):.2g}"
+                               for k, v in c.parameters.items())  # fmt: skip
+                lines.append(f"    fitted: {sd}")
+    for c in d.candidates:
+        if c.warning and (c.significant or c.effect in d.suggested_effects):
+            lines.append(f"warning: {c.warning}")
+    seen: set[frozenset[str]] = set()
+    for c in d.candidates:
+        for o in c.confounded_with if c.significant else []:
+            pair = frozenset((c.effect, o["effect"]))
+            if pair in seen:
+                continue
+            seen.add(pair)
+            lines.append(
+                f"confounded: {c.effect} and {o['effect']} (signature correlation "
+                f"{o['signature_correlation']:+.2f}, evidence ratio {o['evidence_ratio']:.3g}): "
+                f"{o['advice']}"
+            )
+    for note in d.notes:
+        lines.append(f"note: {note}")
+    lines.append(f"verdict: {d.verdict}")
     return "\n".join(lines) + "\n"
