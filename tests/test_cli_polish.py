@@ -99,3 +99,25 @@ def test_serve_help_lists_every_setting(capsys: pytest.CaptureFixture[str]) -> N
 def test_top_level_help_lists_db(capsys: pytest.CaptureFixture[str]) -> None:
     out = _help(["--help"], capsys)
     assert "--version" in out and "\n    db " in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--latitude", "200"],
+        ["--latitude", "nan"],
+        ["--height", "inf"],
+        ["--positions", "0", "--design", "random"],
+        ["--window", "-5"],
+        ["--trajectory", "voyage", "--latitude", "-91"],
+    ],
+)
+def test_bad_simulate_values_are_one_line_exit_2(
+    argv: list[str], tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out.csv"
+    flag = ["--recording", str(out)] if "--trajectory" in argv else ["-o", str(out)]
+    assert main(["simulate", *argv, *flag]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("recal simulate: error: "), err
+    assert not out.exists()  # nothing half-written

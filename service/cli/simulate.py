@@ -213,6 +213,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rate is None:
         args.rate = TRAJECTORY_RATE_HZ if args.trajectory else DEFAULT_RATE_HZ
+    if not -90.0 <= args.latitude <= 90.0:  # NaN fails too
+        raise RecalInputError(f"--latitude {args.latitude} is outside [-90, 90] deg")
+    if not np.isfinite(args.height) or not np.isfinite(args.rate):
+        raise RecalInputError("--height and --rate must be finite numbers")
     if args.trajectory:
         return _run_trajectory(args)
     if args.recording or args.track:
