@@ -465,6 +465,12 @@ class NavigationImpact:
     def error_nmi_1sigma(self) -> float:
         return self.error_m_1sigma / NMI_M
 
+    @property
+    def significant(self) -> bool:
+        """The accepted version's error (if this one is right) exceeds this one's 1-sigma: the
+        recalibration changes the predicted error by more than it is unsure of."""
+        return self.old_error_m is not None and self.old_error_m > self.error_m_1sigma
+
     def worse_than_accepted(self, margin_nmi: float = 0.0) -> bool:
         """True when this version's 1-sigma error exceeds the accepted one's by ``margin_nmi``."""
         if self.accepted_error_m_1sigma is None:
@@ -483,6 +489,11 @@ class NavigationImpact:
                 f"predicted {h} static error from {self.old_error_m / NMI_M:.2f} to "
                 f"{self.error_nmi_1sigma:.2f} nmi; " + text
             )
+            if not self.significant:
+                text += (
+                    f"; the two versions differ by less than this uncertainty: version "
+                    f"{self.from_version} is as good, within what this calibration can tell"
+                )
         if self.exact:
             text += f" ({len(self.exact)} coefficient(s) counted as exact: {', '.join(self.exact)})"
         return text
@@ -498,6 +509,7 @@ class NavigationImpact:
                 "old_error_nmi": old,
                 "new_error_nmi": nmi,
                 "delta_nmi": nmi - old,
+                "significant": self.significant,
                 "accepted_error_nmi_1sigma": None if accepted is None else accepted / NMI_M,
             }
         return {

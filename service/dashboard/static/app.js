@@ -105,7 +105,7 @@ function renderCurrent() {
   $("version-meta").textContent = `${when} · ${rec.trigger} trigger · ${rec.method} · ${rec.positions_used.length} windows${chi}${obs}`
     + (rec.prior_version ? ` · previous v${rec.prior_version}` : "");
   $("reasons").replaceChildren(...(rec.reasons || []).map((r) => el("li", {}, r)));
-  renderNavImpact(doc.navigation_impact);
+  renderNavImpact(doc.navigation_impact, rec.reasons || []);
   const prev = state.previous ? new Map(flatten(state.previous.document).map((r) => [r.id, r])) : new Map();
   const changeHead = state.previous ? `Δ vs v${state.previous.version} (σ)` : "Δ (σ)";
   const rows = flatten(doc);
@@ -144,7 +144,7 @@ function coefficientRow(row, p) {
     el("td", { className: `status-${row.status}` }, row.status || "-"));
 }
 
-function renderNavImpact(impact) {
+function renderNavImpact(impact, reasons) {
   const box = $("nav-impact");
   if (!impact || typeof impact !== "object") { box.hidden = true; box.replaceChildren(); return; }
   const figure = (value, label) => el("div", { className: "figure" }, el("b", {}, value), el("span", {}, label));
@@ -154,11 +154,15 @@ function renderNavImpact(impact) {
   if (isNum(m)) parts.push(figure(`${Math.round(m)} m`, "same, in metres"));
   if (isNum(impact.latitude_deg)) parts.push(figure(`${impact.latitude_deg.toFixed(1)}°`, "latitude"));
   const ch = impact.change;
-  if (ch && typeof ch === "object" && isNum(ch.delta_nmi)) {
+  if (ch && typeof ch === "object" && isNum(ch.old_error_nmi)) {
     const from = isNum(ch.from_version) ? `v${ch.from_version}` : "the previous version";
-    const old = isNum(ch.old_error_nmi) ? ` (${ch.old_error_nmi.toFixed(2)} → ${fmt(ch.new_error_nmi, 2)} nmi)` : "";
-    parts.push(figure(`${ch.delta_nmi >= 0 ? "+" : ""}${ch.delta_nmi.toFixed(2)} nmi`, `change from ${from}${old}`));
+    parts.push(figure(`${ch.old_error_nmi.toFixed(2)} nmi`, `what ${from} leaves if this version is right`));
+    if (isNum(ch.accepted_error_nmi_1sigma)) {
+      parts.push(figure(`${ch.accepted_error_nmi_1sigma.toFixed(2)} nmi`, `${from}'s own 1σ`));
+    }
   }
+  // the gate's notes already carry the sentence once there is a previous version
+  if (typeof impact.summary === "string" && !reasons.includes(impact.summary)) parts.push(el("p", { className: "impact-summary" }, impact.summary));
   box.replaceChildren(...parts);
   box.hidden = parts.length < 2;
 }
