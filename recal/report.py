@@ -197,8 +197,9 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
 <table><tr><th>invariant</th><th>RMS</th><th>noise floor</th><th>ratio</th><th>unit</th>
 <th>worst positions</th></tr>{"".join(rows)}</table>
 <h2>Candidate effects (best first)</h2>
-<p>delta BIC &lt; 0 means the effect earns its parameters; significant: F-test p &lt;
-{doc["alpha"]} (Bonferroni-corrected) and delta BIC &lt; 0; explained: share of the residual power
+<p>delta BIC &lt; 0 means the effect earns its parameters; significant: family-wise p
+(parametric bootstrap over all candidates, with the real correlation of the residuals) &lt;
+{doc["alpha"]} and delta BIC &lt; 0; explained: share of the residual power
 above the noise floor that the effect removes.</p>
 <p>Core shift: the largest move of a seed coefficient (scale, bias, misalignment) when the
 effect is added, in that coefficient's 1&sigma; without it. A large shift of a coefficient the

@@ -148,3 +148,45 @@ def test_model_ladder_in_json_text_and_html():
     assert "model ladder:" in format_diagnosis(d)
     page = diagnosis_html(d)
     assert "Model ladder" in page and "Fitted effect parameters" in page and "kTx" in page
+
+
+def test_noise_correlation_matches_simulated_window_noise():
+    """The gyro norm and the dot product of one window share its gyro noise: the predicted
+    correlation of their whitened residuals matches simulated noise (fixed 24-position
+    orientations, 150 noise draws, evaluated at the truth)."""
+    from recal.diagnose import noise_correlation
+    from recal.model import ParameterLayout
+    from recal.problem import Problem
+
+    truth = CoefficientSet.seed_truth()
+    runs = []
+    for seed in range(150):
+        pos = simulate_positions(truth, "24", None, 70.0, seed=seed)
+        if seed == 0:
+            base = diagnose(pos, CalibrationOptions(latitude_deg=70.0), candidates=[]).baseline
+            models = base.problem.models
+            theta = truth.to_vector(ParameterLayout(models))
+        prob = Problem.build(pos, models, 70.0, 0.0, theta)
+        runs.append(prob.residuals(theta[None])[0])
+    E = np.array(runs)
+    M = prob.M
+    predicted = noise_correlation(prob, theta)
+    i, j = np.arange(M), 2 * M + np.arange(M)  # gyro_norm and dot of the same window
+    empirical = np.array([np.corrcoef(E[:, a], E[:, b])[0, 1] for a, b in zip(i, j)])
+    assert np.mean(predicted[i, j]) > 0.8  # Earth rate nearly along gravity at 70 deg
+    assert abs(np.mean(empirical) - np.mean(predicted[i, j])) < 0.05
+
+
+@pytest.mark.parametrize("seed", [31, 197])
+def test_clean_high_latitude_sessions_raise_no_alarm(seed):
+    """Sessions where Bonferroni on the nominal F-test (independent residuals) raised a false
+    gyro.bias_temperature alarm; the calibrated family-wise p-value does not."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(12, 37))
+    lat = float(rng.choice([0.0, 20.0, 45.0, 60.0, 70.0]))
+    pos = simulate_positions(CoefficientSet.seed_truth(), "random", n, lat, seed=seed,
+                             temperature=SWING if seed % 2 else TemperatureSpec(20.0, 2.0))  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=lat))
+    assert not [c.effect for c in d.candidates if c.significant]
+    top = d.candidates[0]
+    assert top.p_value < 0.01 / 8 < top.p_adjusted  # nominal would have alarmed
