@@ -514,8 +514,12 @@ def _score(
     raw = fit.problem.raw_residuals(fit.theta[None])
     cand.rms_after = {k: float(np.sqrt(np.mean(v[0] ** 2))) for k, v in raw.items()}
     cand.residuals_after = {k: v[0] for k, v in raw.items()}
-    ctx = fit.problem.ctx
-    cand.drivers = {k: np.asarray(ctx[k], dtype=float) for k in sorted(term.needs) if k in ctx}
+    # the problem's context, and what a plugin term was bound to (site quantities, columns)
+    bound = next(t for m in fit.problem.models for t in m.terms if t.name == term.name)
+    ctx = {**fit.problem.ctx, **getattr(bound, "extra", {})}
+    m = fit.problem.M
+    cand.drivers = {k: np.asarray(ctx[k], dtype=float) for k in sorted(term.needs)
+                    if k in ctx and np.shape(ctx[k])[:1] == (m,)}  # fmt: skip
     if not cand.drivers and "accel" in fit.problem.sensors:
         cand.drivers = {"specific_force_g": fit.problem._specific_force(fit.theta)}
     sl = fit.problem.layout.term_slices()[term.name]

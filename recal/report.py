@@ -67,8 +67,8 @@ def _driver_columns(drivers: dict[str, np.ndarray], m: int) -> list[tuple[str, n
         if v.shape == (m,):
             cols.append((_DRIVER_LABELS.get(key, key), v))
         elif v.shape == (m, 3):
-            name = "specific force" if key == "specific_force_g" else key
-            unit = " [g]" if key == "specific_force_g" else ""
+            name = "specific force" if key == "specific_force_g" else key.replace("_", " ")
+            unit = " [g]" if key == "specific_force_g" else " [body axes]"
             cols += [(f"{name} {ax}{unit}", v[:, j]) for j, ax in enumerate("xyz")]
     return cols
 

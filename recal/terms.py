@@ -12,7 +12,36 @@ candidate parameter vectors (P = 1 for LM, fish × runs for a swarm) and contrib
 against (P, M, 3) for M positions. A new term never touches a solver.
 
 To add an effect of your own, subclass :class:`Term` in a Python file and pass it with
-``recal calibrate --plugin FILE.py`` (the file defines ``TERMS = [MyTerm(), ...]``).
+``--plugin FILE.py`` (the file defines ``TERMS = [MyTerm(), ...]``). ``recal diagnose`` then
+tries it as a candidate; ``recal calibrate`` fits it when it is named in ``--effects``. The file
+is checked on load (:func:`recal.plugins.validate_terms`): the name is ``sensor.effect`` with
+the sensor prefix, ``typical`` and ``neutral`` have one number per parameter, and a trial
+evaluation must return arrays that broadcast to (P, M, 3) ((P, 3, 3) for ``matrix``), finite,
+vanishing at ``neutral``. A mistake exits 2 naming the file, the term and the problem.
+
+The context ``ctx`` a contribution receives holds exactly the keys the term lists in ``needs``:
+
+=============================  =========  ===================================================
+key                            shape      meaning
+=============================  =========  ===================================================
+``temperature_c``              (M,)       mean temperature of each window, degC
+``temperature_rate_c_per_h``   (M,)       temperature slope over the window, degC/h
+``time_h``                     (M,)       window middle, hours from the session start
+``specific_force_g``           (M, 3)     specific force in body axes, g (accel at the prior)
+``gravity_direction``          (M, 3)     unit vector of the measured specific force (up)
+``earth_rate_direction``       (M, 3)     unit vector of the measured rate
+``north``, ``east``            (M, 3)     local north and east in body axes (both triads)
+``latitude_deg``               scalar     site latitude
+``gravity_g``                  scalar     local normal gravity, g
+``earth_rate_deg_h``           scalar     Earth rate, deg/h
+any other positions column     (M,)       e.g. ``mag_x``, when the CSV has it
+=============================  =========  ===================================================
+
+The directions are measured (outputs corrected with the prior's scale and bias), so no
+attitude is needed: a field fixed in the local frame is ``B_N north + B_E east + B_U
+gravity_direction`` in body axes (``docs/examples/faraday_plugin.py``). A coefficients file
+written with a plugin effect records the plugin's file (``metadata.plugins``); using it as
+``--prior`` without that ``--plugin`` is an input error.
 """
 
 from __future__ import annotations

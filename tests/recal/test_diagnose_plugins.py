@@ -12,6 +12,7 @@ from recal.coefficients import CoefficientSet
 from recal.diagnose import diagnose
 from recal.errors import RecalInputError
 from recal.plugins import hidden_plugin, site_context, true_site_context
+from recal.report import diagnosis_html
 from recal.simulate import design_orientations, simulate_positions
 from service.cli.common import load_plugin
 from service.cli.main import main
@@ -52,6 +53,10 @@ def test_plugin_without_effects_is_a_candidate_and_ranks_first():
     est = np.array(list(top.parameters.values()))
     sd = np.array(list(top.uncertainty.values()))
     assert np.all(np.abs(est - F_TRUE) < 4 * sd)
+    # the report plots the residual against what drives the plugin: the site directions
+    assert set(top.drivers) == {"north", "east", "gravity_direction"}
+    page = diagnosis_html(d)
+    assert "gravity direction x [body axes]" in page and "with gyro.faraday" in page
 
 
 def test_cli_diagnose_with_plugin_and_no_effects(tmp_path, capsys):
