@@ -164,6 +164,7 @@ class Service:
         """Stop reading, store the open window, let a running job finish (up to
         ``scheduler.stop_wait_s``) or abandon it, and release everything."""
         self.publisher.close()  # ends open /events streams
+        self.scheduler.stop_starting()  # the flush below may store windows: they start nothing
         if self.reader is not None:
             self.reader.stop()
         try:

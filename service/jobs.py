@@ -161,11 +161,15 @@ class JobRunner:
         with self._lock:
             self._cancel = reason
 
+    def stop_starting(self) -> None:
+        """From now on :meth:`submit` refuses (shutdown has begun); a running job goes on."""
+        with self._lock:
+            self._stopping = True
+
     def shutdown(self, wait_s: float = 0.0) -> None:
         """Let the running job finish for up to ``wait_s``, then kill it; stop the supervisor."""
         deadline = time.monotonic() + max(0.0, wait_s)
-        with self._lock:
-            self._stopping = True
+        self.stop_starting()
         while self.busy and time.monotonic() < deadline:
             time.sleep(POLL_S)
         with self._lock:
@@ -242,8 +246,7 @@ class JobRunner:
             return JobEnd(r.job, "error", message=str(value), duration_s=elapsed)
         if not r.process.is_alive():
             return self._died(r, elapsed)
-        with self._lock:
-            cancel = self._cancel
+        cancel = self._cancel_reason()
         if cancel:
             self._reap(r)
             return JobEnd(r.job, "cancelled", message=cancel, duration_s=elapsed)
@@ -264,8 +267,7 @@ class JobRunner:
                           message=f"stopped by signal {-code} sent to the service's process "
                           "group while the worker was starting")  # fmt: skip
         how = f"signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-        with self._lock:
-            cancel = self._cancel
+        cancel = self._cancel_reason()
         if cancel:  # shutdown (or cancel) reaped it first, e.g. while this thread was slow
             return JobEnd(r.job, "cancelled", message=f"{cancel} (the worker ended by {how})",
                           duration_s=elapsed)  # fmt: skip
@@ -273,6 +275,14 @@ class JobRunner:
             how += ": killed, by the kernel's out-of-memory killer or by an operator"
         return JobEnd(r.job, "died", message=f"the worker process died ({how})",
                       duration_s=elapsed)  # fmt: skip
+
+    def _cancel_reason(self) -> str | None:
+        """Why the running job must stop: cancelled, or the runner closed (a job started while
+        :meth:`shutdown` looked, between leaving the queue and becoming the running one)."""
+        with self._lock:
+            if self._cancel is None and self._closed:
+                self._cancel = "the service stopped before the job finished"
+            return self._cancel
 
     def _reap(self, r: _Running, grace_s: float = 0.0) -> None:
         """Make sure the worker and its process group are gone, and close the pipe."""

@@ -522,6 +522,7 @@ class Scheduler:
         self._retry = False  # a finished job could not be stored: run again when possible
         self.last_outcome: JobOutcome | None = None
         self.last_end: JobEnd | None = None
+        self._unit_warned: list[str] = []
         self._finished = threading.Event()
         self._finished.set()
 
@@ -568,6 +569,9 @@ class Scheduler:
             keep = s.scheduler.use_last_positions
             if len(ids) > keep:  # the most recent windows describe the unit as it is now
                 positions, ids = positions.subset(np.arange(len(ids) - keep, len(ids))), ids[-keep:]
+            units = self._unit_problems(positions)
+            if units:  # calibrating would publish a scale factor of 0.1, "accepted"
+                raise SchedulerRefused("; ".join(units))
             previous = self._store.current()
             slews = self._slews(positions, ids) if s.scheduler.use_slews else None
             options = CalibrationOptions(
@@ -603,6 +607,19 @@ class Scheduler:
                           {"job": job, "state": "started", "trigger": trigger,
                            "positions": len(ids)})  # fmt: skip
         return job
+
+    def _unit_problems(self, positions: Positions) -> list[str]:
+        """A KVH outputs physical units: windows far from Earth's rate or 1 g mean a wrong
+        ``[device]`` setting, named in the reason (emitted once as a device event)."""
+        from recal.plausibility import check_units
+
+        d = self._settings.device
+        units = "[device] gyro_output / gyro_units"
+        problems = check_units(positions).problems("[device] rate_hz", d.rate_hz, units)
+        if problems and problems != self._unit_warned:
+            self._events.emit("device", "; ".join(problems), level=logging.WARNING)
+        self._unit_warned = problems
+        return problems
 
     def _slews(self, positions: Positions, ids: list[int]) -> Any:
         """The stored slews between these positions, with their rows (None when there are none)."""
@@ -654,6 +671,10 @@ class Scheduler:
         """Block until the running job (if any) is finished, stored and published."""
         self._finished.wait(timeout)
         return self.last_outcome
+
+    def stop_starting(self) -> None:
+        """No new job from now on (windows stored while stopping must not start one)."""
+        self._runner.stop_starting()
 
     def shutdown(self, wait_s: float = 0.0) -> None:
         """Let a running job finish for up to ``wait_s`` s, then abandon it (recorded)."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 FORMATS = ("kvh-a", "kvh-b", "kvh-c", "xsens-text", "csv")
 _PROGRESS_MIN_BYTES = 16 << 20  # below this a bar would only flicker
@@ -193,7 +194,13 @@ def run(args: argparse.Namespace) -> int:
     # Printed only on success: a failed run prints its one-line error and nothing else.
     for line in recording.notes() + report.summary_lines():
         print(f"recal positions: {line}", file=sys.stderr)
-    _write(out, windows, recording.triads)
+    positions = _write(out, windows, recording.triads)
+    if args.format.startswith("kvh"):  # physical units: Earth rate and gravity check them
+        from recal.plausibility import check_units
+
+        units = "--gyro-output / --gyro-units"
+        for line in check_units(positions).problems("--rate", report.sample_rate_hz or 0.0, units):
+            print(f"recal positions: warning: {line}", file=sys.stderr)
     durations = [w.duration_s for w in windows]
     print(
         f"recal positions: wrote {len(windows)} windows ({min(durations):.1f}-"
@@ -319,15 +326,18 @@ def _units(fmt: str) -> dict[str, str]:
     return {"gyro": "output units", "accel": "output units"}
 
 
-def _write(out: Path, windows, triads: tuple[str, ...]) -> None:
-    """The positions CSV, atomically; columns of a triad the input lacks are left out."""
+def _write(out: Path, windows, triads: tuple[str, ...]) -> Any:
+    """The positions CSV, atomically (columns of a triad the input lacks are left out); returns
+    the :class:`recal.positions.Positions` written."""
     from recal.positions import Positions
     from recal.static import windows_to_columns
     from service.cli.common import atomic_write
 
     missing = tuple(f"{s}_" for s in ("gyro", "accel") if s not in triads)
     columns = {k: v for k, v in windows_to_columns(windows).items() if not k.startswith(missing)}
-    atomic_write(out, Positions.from_columns(columns, source=str(out)).to_csv_text())
+    positions = Positions.from_columns(columns, source=str(out))
+    atomic_write(out, positions.to_csv_text())
+    return positions
 
 
 def blocks(pieces, size: int):

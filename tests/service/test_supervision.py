@@ -99,14 +99,20 @@ def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
         with pytest.raises(SchedulerRefused, match="scheduler.min_positions"):
             service.scheduler.trigger("auto")
         # four stored windows: the engine's own reason, at once (not a 202 and a failed job)
-        from recal.coefficients import CoefficientSet
         from recal.simulate import simulate_positions
 
-        four = simulate_positions(CoefficientSet.seed_truth(), design="random", n_positions=4)
+        four = simulate_positions(kvh_like_truth(4), design="random", n_positions=4)
         service.store.add_positions(service.session_id, four.columns)
         with pytest.raises(SchedulerRefused, match="4 stored positions cannot be used.*rank"):
             service.scheduler.trigger("manual")
         assert not service.scheduler.busy
+        # a KVH outputs deg/h and g: windows at a tenth of Earth's rate mean a wrong rate_hz,
+        # said before anything is calibrated (and published with a scale factor of 0.1)
+        slow = {k: v / 10 if k.startswith("gyro_") else v for k, v in four.columns.items()}
+        service.store.add_positions(service.session_id, slow)
+        with pytest.raises(SchedulerRefused, match=r"rate_hz 100 \(these windows suggest"):
+            service.scheduler.trigger("manual")
+        assert "[device] rate_hz" in service.store.last_event("device")["message"]
     finally:
         service.close(wait_s=0)
 
