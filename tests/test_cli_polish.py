@@ -121,3 +121,21 @@ def test_bad_simulate_values_are_one_line_exit_2(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("recal simulate: error: "), err
     assert not out.exists()  # nothing half-written
+
+
+def test_positions_warns_when_the_rate_setting_is_wrong(
+    tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A KVH outputs physical units: read at a tenth of its rate, the gyro shows a tenth of
+    Earth's rate, and the warning names --rate and the rate the windows suggest."""
+    cap = tmp_path / "cap.bin"
+    assert main(["simulate", "--capture", str(cap), "--rate", "100", "--first-hold", "40"]) == 0
+    capsys.readouterr()
+    for rate, warned in (("100", False), ("10", True)):
+        out = tmp_path / f"pos{rate}.csv"
+        args = ["positions", str(cap), "--format", "kvh-a", "--rate", rate, "-o", str(out)]
+        assert main(args) == 0
+        err = capsys.readouterr().err
+        assert ("warning: at rest the gyro reads" in err) == warned, err
+        if warned:
+            assert "--rate 10 (these windows suggest 100 Hz)" in err
