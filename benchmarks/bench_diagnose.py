@@ -188,6 +188,9 @@ def fdr_table(sessions: int, pool: ProcessPoolExecutor) -> list[str]:
     alarms = [(r["seed"], r["size"], r["lat"], r["false"]) for r in ok if r["false"]]
     lines.append("")
     lines.append(f"false alarms (seed, positions, latitude, effects): {alarms or 'none'}")
+    for r in res:
+        if "refused" in r:
+            lines.append(f"refused (seed {r['seed']}, {r['size']} positions): {r['refused']}")
     return lines
 
 

@@ -54,7 +54,7 @@ from recal.calibrate import UNITS, CalibrationOptions, CalibrationResult, build_
 from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.model import ParameterLayout
-from recal.observability import analyze, jacobian
+from recal.observability import INFO_MIN, analyze, jacobian
 from recal.plugins import bind_context, site_context, values_by_term
 from recal.positions import Positions
 from recal.problem import Problem
@@ -496,9 +496,7 @@ def _score(
         return cand
     if fit.verdict == "insufficient" or dk <= 0:
         cand.identifiable = False
-        cand.reason = (
-            "these positions cannot show it: the data pin it down no better than its typical size"
-        )
+        cand.reason = _why_not_shown(current, fit, term)
         return cand
     cand.added_directions = dk
     cand.delta_bic = (fit.rss - current.rss) + dk * np.log(n)
@@ -601,6 +599,35 @@ def _family_pvalues(
     for c in ok:
         c.p_adjusted = float((1 + np.sum(min_p <= c.p_value)) / (1 + NULL_DRAWS))
         c.significant = bool(c.p_adjusted < ALPHA and c.delta_bic < 0)
+
+
+def _why_not_shown(current: Fit, fit: Fit, term: Term) -> str:
+    """Why the extended model has no new observable direction, from its Jacobian: the data do
+    not see the effect at all, or they see it only along directions the current model's
+    coefficients already span (then it cannot be separated from them in this design)."""
+    layout = fit.problem.layout
+    sl = layout.term_slices()[term.name]
+    typical = layout.typical(fit.theta)
+    idx = np.arange(layout.size)[sl]
+    Je = jacobian(fit.problem, fit.theta, (typical[idx, None] * np.eye(layout.size)[idx]))
+    seen = np.linalg.norm(Je, 2) if Je.size else 0.0
+    if seen < INFO_MIN or current.jac is None or not current.jac.size:
+        return (
+            "these positions cannot show it: the data pin it down no better than its typical size"
+        )
+    # the current model's coefficients on the same footing (per typical change), by name
+    names0 = current.problem.layout.names
+    typ0 = current.problem.layout.typical(current.theta)
+    est = np.isfinite(current.sd) if current.sd is not None else np.ones(len(names0), bool)
+    Jc = jacobian(current.problem, current.theta, typ0[est, None] * np.eye(len(names0))[est])
+    B, *_ = np.linalg.lstsq(Jc, Je, rcond=None)  # Je ~ Jc B: which coefficients mimic it
+    weight = np.linalg.norm(B, axis=1)
+    top = [np.array(names0)[est][i] for i in np.argsort(-weight)[:3] if weight[i] > 0.1]
+    who = ", ".join(top) or "the coefficients already in the model"
+    return (
+        f"cannot be separated from {who} in this design: every direction the data show of it "
+        "is already one of theirs (from the extended model's Jacobian)"
+    )
 
 
 def _core_indices(names: list[str]) -> list[int]:
