@@ -381,6 +381,26 @@ def _same_span(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
     return bool(np.all(np.linalg.svd(a.T @ b, compute_uv=False) > 1 - tol)) if a.size else True
 
 
+def _excess_note(
+    problem: Problem, theta: np.ndarray, T: np.ndarray, chi2_red: float, method: str
+) -> str:
+    """Why chi2_red exceeds 4. A swarm (above all with --paper) may stop short of the minimum:
+    LM from its solution tells a solver that stopped early from a model that lacks an effect."""
+    if method != "lm" and T.shape[1]:
+        lm = solve_lm(problem, theta, T)
+        _, chi2_lm = covariance(problem, lm.theta, T)
+        if chi2_lm <= 2.0:
+            return (
+                f"chi2_red = {chi2_red:.1f}: the {method} solution stopped short of the minimum; "
+                f"LM from it fits these windows to the noise (chi2_red {chi2_lm:.2f}), so no "
+                "effect is missing: use --method lm (or --polish) rather than recal diagnose"
+            )
+    return (
+        f"chi2_red = {chi2_red:.1f}: residuals exceed the window noise; an effect may be "
+        "missing from the model (try `recal diagnose`)"
+    )
+
+
 def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[str]:
     """What the user must know about what was held and whether the fit can be checked."""
     notes = []
@@ -676,10 +696,7 @@ def calibrate(
             "sensor's output units and that the windows are really static"
         )
     elif problem.noise_known and chi2_red > 4.0:
-        notes.append(
-            f"chi2_red = {chi2_red:.1f}: residuals exceed the window noise; an effect may be "
-            "missing from the model (try `recal diagnose`)"
-        )
+        notes.append(_excess_note(problem, theta, T, chi2_red, opt.method))
     slices = layout.term_slices()
     coeffs = CoefficientSet.from_vector(
         layout,

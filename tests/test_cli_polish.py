@@ -139,3 +139,18 @@ def test_positions_warns_when_the_rate_setting_is_wrong(
         assert ("warning: at rest the gyro reads" in err) == warned, err
         if warned:
             assert "--rate 10 (these windows suggest 100 Hz)" in err
+
+
+def test_paper_mode_excess_is_blamed_on_the_solver_when_lm_fits(
+    tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--paper swarms stop short of the minimum: the note says so (LM from the swarm's solution
+    fits to the noise) instead of sending the user to diagnose; MC std is explained."""
+    pos = tmp_path / "pos.csv"
+    assert main(["simulate", "--seed", "1", "-o", str(pos)]) == 0
+    args = ["calibrate", str(pos), "--latitude", "45", "--method", "nafsa", "--mc", "10"]
+    assert main([*args, "--paper"]) == 0
+    out = capsys.readouterr().out
+    assert "the nafsa solution stopped short of the minimum" in out
+    assert "recal diagnose`" not in out
+    assert "MC std: the spread of the coefficient over the 10 Monte Carlo runs" in out

@@ -287,6 +287,12 @@ def format_result(r: CalibrationResult) -> str:
         partial = status[i] == "estimated" and r.observability.share[i] < 0.99
         state = "estimated*" if partial else status[i]
         lines.append(f"{name:34s} {r.theta[i]:16.9g} {sig} {mc} {state:10s} [{unit}]")
+    if r.mcs is not None:
+        lines.append(
+            f"MC std: the spread of the coefficient over the {r.mcs.runs.shape[0]} Monte Carlo "
+            "runs of the swarm (seed 000's MCS): how repeatably the solver lands on these "
+            "windows, not how well they determine the coefficient (that is 1-sigma (GN))"
+        )
     lines.append("")
     lines.append(f"{'invariant':12s} {'RMS before':>12s} {'RMS after':>12s} {'noise floor':>12s}")
     for n, v in r.residual_summary().items():
