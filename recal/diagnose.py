@@ -77,6 +77,7 @@ class Fit:
     cov: np.ndarray | None = None  # covariance at the solution
     degenerate: bool = False  # the rank fell at the solution (a degenerate valley)
     jac: np.ndarray | None = None  # whitened Jacobian at the solution, observable directions
+    transform: np.ndarray | None = None  # (D, k) parameter change per unit of those directions
 
     def residual(self) -> np.ndarray:
         return self.problem.residuals(self.theta[None])[0]
@@ -228,9 +229,10 @@ def _fit(
     at = analyze(problem, theta, typical)
     cov, _ = covariance(problem, theta, typical[:, None] * at.basis)
     sd = np.where(at.estimated, np.sqrt(np.clip(np.diag(cov), 0, None)), np.nan)
-    J = jacobian(problem, theta, (typical[:, None] * at.basis).T)
+    T = typical[:, None] * at.basis
     return Fit(tuple(effects), problem, theta, report.rank, float(r @ r), report.verdict,
-               sd, cov, degenerate=at.rank < report.rank, jac=J)  # fmt: skip
+               sd, cov, degenerate=at.rank < report.rank, jac=jacobian(problem, theta, T.T),
+               transform=T)  # fmt: skip
 
 
 def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
@@ -615,14 +617,13 @@ def _why_not_shown(current: Fit, fit: Fit, term: Term) -> str:
         return (
             "these positions cannot show it: the data pin it down no better than its typical size"
         )
-    # the current model's coefficients on the same footing (per typical change), by name
+    # Je ~ J0 Z on the current model's observable directions; T Z is the coefficient change
+    # that mimics one typical change of the effect, here per the coefficients' typical change
+    Z, *_ = np.linalg.lstsq(current.jac, Je, rcond=None)
     names0 = current.problem.layout.names
     typ0 = current.problem.layout.typical(current.theta)
-    est = np.isfinite(current.sd) if current.sd is not None else np.ones(len(names0), bool)
-    Jc = jacobian(current.problem, current.theta, typ0[est, None] * np.eye(len(names0))[est])
-    B, *_ = np.linalg.lstsq(Jc, Je, rcond=None)  # Je ~ Jc B: which coefficients mimic it
-    weight = np.linalg.norm(B, axis=1)
-    top = [np.array(names0)[est][i] for i in np.argsort(-weight)[:3] if weight[i] > 0.1]
+    weight = np.linalg.norm(current.transform @ Z, axis=1) / typ0
+    top = [names0[i] for i in np.argsort(-weight)[:3] if weight[i] > 0.1]
     who = ", ".join(top) or "the coefficients already in the model"
     return (
         f"cannot be separated from {who} in this design: every direction the data show of it "

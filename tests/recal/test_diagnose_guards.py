@@ -190,3 +190,14 @@ def test_clean_high_latitude_sessions_raise_no_alarm(seed):
     assert not [c.effect for c in d.candidates if c.significant]
     top = d.candidates[0]
     assert top.p_value < 0.01 / 8 < top.p_adjusted  # nominal would have alarmed
+
+
+def test_an_effect_the_design_confounds_names_what_it_cannot_be_separated_from():
+    """On a steady ramp the temperature rate is constant: a Shupe bias is a constant bias."""
+    truth = CoefficientSet.seed_truth()
+    pos = simulate_positions(truth, "24", None, 45.0, seed=0, sensors=("gyro",),
+                             temperature=TemperatureSpec(20.0, 2.0))  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=45.0),
+                 candidates=["gyro.bias_temperature_rate"])  # fmt: skip
+    (c,) = d.candidates
+    assert not c.identifiable and "cannot be separated from gyro.bias." in c.reason
