@@ -162,7 +162,8 @@ def _serve(service, settings) -> int:
 
     url = f"http://{settings.api.host}:{settings.api.port}"
     token = settings.api.token.get_secret_value()
-    print(f"\nserving the demo at {url}  (try {url}/coefficients, {url}/docs; Ctrl-C stops)\n"
+    print(f"\nserving the demo at {url}  (the dashboard: {url}/ ; the API: {url}/coefficients, "
+          f"{url}/docs; Ctrl-C stops)\n"
           f"API token for write endpoints: {token}\n"
           f"  curl -X POST -H 'Authorization: Bearer {token}' {url}/recalibrate",
           flush=True)  # fmt: skip
