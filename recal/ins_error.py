@@ -457,7 +457,7 @@ class NavigationImpact:
     error_m_1sigma: float
     max_error_m_1sigma: float
     exact: tuple[str, ...] = ()
-    from_version: int | None = None
+    from_version: int | str | None = None  # a stored version, or a file name
     old_error_m: float | None = None
     accepted_error_m_1sigma: float | None = None
 
@@ -484,15 +484,16 @@ class NavigationImpact:
             f"{self.error_nmi_1sigma:.2f} nmi (1 sigma) at {self.latitude_deg:.1f} deg"
         )
         if self.from_version is not None and self.old_error_m is not None:
+            v = self.from_version
+            name = f"version {v}" if isinstance(v, int) else v
             text = (
-                f"loading this version instead of version {self.from_version} changes the "
-                f"predicted {h} static error from {self.old_error_m / NMI_M:.2f} to "
-                f"{self.error_nmi_1sigma:.2f} nmi; " + text
+                f"loading this version instead of {name} changes the predicted {h} static error "
+                f"from {self.old_error_m / NMI_M:.2f} to {self.error_nmi_1sigma:.2f} nmi; " + text
             )
             if not self.significant:
                 text += (
-                    f"; the two versions differ by less than this uncertainty: version "
-                    f"{self.from_version} is as good, within what this calibration can tell"
+                    f"; the two versions differ by less than this uncertainty: {name} is as "
+                    "good, within what this calibration can tell"
                 )
         if self.exact:
             text += f" ({len(self.exact)} coefficient(s) counted as exact: {', '.join(self.exact)})"
@@ -566,7 +567,7 @@ def navigation_impact(
     hours: float = 24.0,
     exact: Sequence[str] = (),
     old: CoefficientSet | None = None,
-    from_version: int | None = None,
+    from_version: int | str | None = None,
     accepted_error_m_1sigma: float | None = None,
     step_s: float = DEFAULT_STEP_S,
 ) -> NavigationImpact:

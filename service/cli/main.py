@@ -26,6 +26,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "diagnose",
     "positions",
     "navigate",
+    "predict",
     "record",
     "serve",
     "db",
