@@ -1,9 +1,11 @@
-"""Shared fixtures: where ../shared/data lives, and how tests treat its absence."""
+"""Shared fixtures: where ../shared/data lives and how tests treat its absence; a real browser."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -19,3 +21,33 @@ def shared_data() -> Path:
             pytest.fail(f"shared data folder {SHARED_DATA} is missing under CI")
         pytest.skip(f"shared data folder {SHARED_DATA} not present")
     return SHARED_DATA
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def browser_missing() -> str | None:
+    """Why the browser tests cannot run here (None: they can)."""
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright is not installed"
+    return None if CHROMIUM.exists() else f"{CHROMIUM} is missing (apt-get install chromium)"
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    """Debian's chromium driven by playwright; skipped without them, except under CI (CI set),
+    where they must be there (.ci/run installs chromium)."""
+    missing = browser_missing()
+    if missing and not os.environ.get("CI"):
+        pytest.skip(missing)
+    assert missing is None, f"the browser tests must run under CI: {missing}"
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
+        try:
+            yield b
+        finally:
+            b.close()

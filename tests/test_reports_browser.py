@@ -3,16 +3,12 @@ axes with readable tick labels. Skipped without chromium or playwright, except u
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from service.cli.main import main
-
-CHROMIUM = Path("/usr/bin/chromium")
 
 #: Per axes of every matplotlib SVG: its axis groups, each with its tick label texts, the label
 #: text (what is not a tick), and the rendered tick label height in CSS pixels.
@@ -32,28 +28,6 @@ AXES_JS = """
   return {index: k, width: box.width, axes};
 })
 """
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    missing = None
-    try:
-        import playwright.sync_api  # noqa: F401
-    except ImportError:
-        missing = "playwright is not installed"
-    if missing is None and not CHROMIUM.exists():
-        missing = f"{CHROMIUM} is missing (apt-get install chromium)"
-    if missing and not os.environ.get("CI"):
-        pytest.skip(missing)
-    assert missing is None, f"the browser test must run under CI: {missing}"
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
-        try:
-            yield b
-        finally:
-            b.close()
 
 
 @pytest.fixture(scope="module")

@@ -82,22 +82,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--report", metavar="OUT.html", help="write an HTML report with error curves")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
-    k.add_argument(
-        "--gyro-output",
-        choices=("delta", "rate"),
-        default="delta",
-        help="ROTFMT: delta angle per sample (default) or rate",
-    )
-    k.add_argument(
-        "--gyro-units", choices=("rad", "deg"), default="rad", help="ROTUNITS (default rad)"
-    )
-    k.add_argument(
-        "--temp-units",
-        choices=("degC", "centi"),
-        default="degC",
-        help="whole degC (default) or hundredths (C_100)",
-    )
+    from service.cli.positions import add_kvh_unit_options
+
+    add_kvh_unit_options(p)
     p.set_defaults(func=run)
     return p
 

@@ -84,22 +84,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_false",
         help="do not keep the slews (the gyro samples between windows) in POSITIONS.slews.npz",
     )
-    k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
-    k.add_argument(
-        "--gyro-output",
-        choices=("delta", "rate"),
-        default="delta",
-        help="ROTFMT: delta angle per sample (default) or rate",
-    )
-    k.add_argument(
-        "--gyro-units", choices=("rad", "deg"), default="rad", help="ROTUNITS (default rad)"
-    )
-    k.add_argument(
-        "--temp-units",
-        choices=("degC", "centi"),
-        default="degC",
-        help="whole degC (default) or hundredths (C_100)",
-    )
+    add_kvh_unit_options(p)
     d = p.add_argument_group("detector")
     d.add_argument(
         "--init-still",
@@ -215,6 +200,26 @@ def run(args: argparse.Namespace) -> int:
     elif side.exists():
         side.unlink()  # a stale side file would not match the new windows
     return 0
+
+
+def add_kvh_unit_options(p: argparse.ArgumentParser) -> None:
+    """The KVH output settings a recording was made with (positions and navigate share them)."""
+    k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
+    k.add_argument(
+        "--gyro-output",
+        choices=("delta", "rate"),
+        default="delta",
+        help="ROTFMT: delta angle per sample (default) or rate",
+    )
+    k.add_argument(
+        "--gyro-units", choices=("rad", "deg"), default="rad", help="ROTUNITS (default rad)"
+    )
+    k.add_argument(
+        "--temp-units",
+        choices=("degC", "centi"),
+        default="degC",
+        help="whole degC (default) or hundredths (C_100)",
+    )
 
 
 def slews_path(positions: Path | str) -> Path:

@@ -4,7 +4,6 @@ where it must run."""
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 from collections.abc import Iterator
@@ -25,33 +24,8 @@ from service.config import (
 )
 from service.daemon import build_service, make_server
 
-CHROMIUM = Path("/usr/bin/chromium")
 TOKEN = "dashboard-test-token-0123456789"
 REFUSED_401 = "the server responded with a status of 401 (Unauthorized)"
-
-
-def _browser_missing() -> str | None:
-    try:
-        import playwright.sync_api  # noqa: F401
-    except ImportError:
-        return "playwright is not installed"
-    return None if CHROMIUM.exists() else f"{CHROMIUM} is missing (apt-get install chromium)"
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    missing = _browser_missing()
-    if missing and not os.environ.get("CI"):
-        pytest.skip(missing)
-    assert missing is None, f"the browser test must run under CI: {missing}"
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
-        try:
-            yield b
-        finally:
-            b.close()
 
 
 @pytest.fixture()
