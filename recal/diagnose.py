@@ -54,7 +54,7 @@ from recal.calibrate import UNITS, CalibrationOptions, CalibrationResult, build_
 from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.model import ParameterLayout
-from recal.observability import INFO_MIN, analyze, jacobian
+from recal.observability import analyze, jacobian
 from recal.plugins import bind_context, site_context, values_by_term
 from recal.positions import Positions
 from recal.problem import Problem
@@ -190,6 +190,13 @@ def _finite(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
+#: Singular value (whitened, per typical change) above which diagnose fits a direction. Lower
+#: than calibrate's INFO_MIN = 1: an effect many times its typical size shows along a direction
+#: the data pin down worse than that typical size (a scale-factor temperature coefficient of
+#: 1e-4/degC against a typical 1e-5), and the F-test, not the prior size, must judge it.
+FIT_INFO_MIN = 0.1
+
+
 def _fit(
     base: CalibrationResult,
     opt: CalibrationOptions,
@@ -221,12 +228,12 @@ def _fit(
                             known_rotations=b.known_rotations)  # fmt: skip
     problem = problem.with_sigma(b.sigma, b.sigma_source)
     typical = layout.typical(theta0)
-    report = analyze(problem, theta0, typical)
+    report = analyze(problem, theta0, typical, info_min=FIT_INFO_MIN)
     if report.verdict == "insufficient":
         return Fit(tuple(effects), problem, theta0, report.rank, float("nan"), report.verdict)
     theta = solve_lm(problem, theta0, typical[:, None] * report.basis).theta if refit else theta0
     r = problem.residuals(theta[None])[0]
-    at = analyze(problem, theta, typical)
+    at = analyze(problem, theta, typical, info_min=FIT_INFO_MIN)
     cov, _ = covariance(problem, theta, typical[:, None] * at.basis)
     sd = np.where(at.estimated, np.sqrt(np.clip(np.diag(cov), 0, None)), np.nan)
     T = typical[:, None] * at.basis
@@ -424,7 +431,7 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
     m = final.problem.M
     per = ", ".join(str(int(i) % m) for i in worst)
     corr = ", ".join(f"{k} (r = {v:+.2f})" for k, v in list(d.residual_correlations.items())[:3])
-    model = f"with {added}" if added else "the seed model"
+    model = f"with {added}" if added else "with the seed model"
     d.verdict = (
         f"the model still fails: chi2_red {d.final_chi2_red:.3g} {model} (p = {p_fit:.2g} "
         "against the noise floor) and no candidate explains the rest; worst positions "
@@ -613,7 +620,7 @@ def _why_not_shown(current: Fit, fit: Fit, term: Term) -> str:
     idx = np.arange(layout.size)[sl]
     Je = jacobian(fit.problem, fit.theta, (typical[idx, None] * np.eye(layout.size)[idx]))
     seen = np.linalg.norm(Je, 2) if Je.size else 0.0
-    if seen < INFO_MIN or current.jac is None or not current.jac.size:
+    if seen < FIT_INFO_MIN or current.jac is None or not current.jac.size:
         return (
             "these positions cannot show it: the data pin it down no better than its typical size"
         )
