@@ -201,3 +201,15 @@ def test_an_effect_the_design_confounds_names_what_it_cannot_be_separated_from()
                  candidates=["gyro.bias_temperature_rate"])  # fmt: skip
     (c,) = d.candidates
     assert not c.identifiable and "cannot be separated from gyro.bias." in c.reason
+
+
+def test_effect_far_above_its_typical_size_is_fitted_not_dismissed():
+    """A gyro scale-factor temperature coefficient ten times its typical change: the data pin
+    it down worse than the typical size along some directions, yet it explains the excess."""
+    truth = CoefficientSet.seed_truth()
+    truth.values["gyro.scale_temperature"] = np.array(VALUES["gyro.scale_temperature"])
+    pos = simulate_positions(truth, "random", 24, 45.0, seed=1000, temperature=SWING,
+                             hidden=[CAT["gyro.scale_temperature"]])  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=45.0))
+    assert d.candidates[0].effect == "gyro.scale_temperature" and d.candidates[0].significant
+    assert not d.model_fails and d.final_chi2_red < 1.5 < d.chi2_red
