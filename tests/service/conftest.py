@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import os
 import secrets
+import threading
+import time
 from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -110,3 +113,46 @@ def make_record(document: dict[str, Any]) -> Callable[..., CalibrationRecord]:
         return CalibrationRecord(**(base | fields))
 
     return make
+
+
+@contextmanager
+def _serving(settings: Any) -> Iterator[tuple[str, Any]]:
+    """A real daemon (uvicorn on ``settings.api.port``, 0 for a free one): (base URL, service).
+    Reading is not started: call :func:`replay_all` when the test is ready for the frames."""
+    from service.daemon import build_service, make_server
+
+    service = build_service(settings)
+    server = make_server(service)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not server.started:
+            assert time.monotonic() < deadline, "server did not start"
+            time.sleep(0.02)
+        yield f"http://127.0.0.1:{server.servers[0].sockets[0].getsockname()[1]}", service
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        service.close()
+
+
+@pytest.fixture
+def serve() -> Callable[[Any], AbstractContextManager[tuple[str, Any]]]:
+    """``with serve(settings) as (base_url, service):`` a real daemon over HTTP."""
+    return _serving
+
+
+def replay_all(service: Any, size: int, timeout_s: float = 60.0) -> None:
+    """Start the replay reader, wait until it has read ``size`` bytes, store the open window."""
+    deadline = time.monotonic() + timeout_s
+    service.reader.start()
+    while service.reader.health().counters.bytes_in < size:
+        assert time.monotonic() < deadline, "replay did not finish"
+        time.sleep(0.05)
+    service.ingest.flush()
+
+
+@pytest.fixture
+def replay() -> Callable[..., None]:
+    return replay_all

@@ -4,8 +4,6 @@ where it must run."""
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -22,14 +20,13 @@ from service.config import (
     Settings,
     SiteSettings,
 )
-from service.daemon import build_service, make_server
 
 TOKEN = "dashboard-test-token-0123456789"
 REFUSED_401 = "the server responded with a status of 401 (Unauthorized)"
 
 
 @pytest.fixture()
-def daemon(tmp_path: Path) -> Iterator[tuple[str, Any]]:
+def daemon(tmp_path: Path, serve, replay) -> Iterator[tuple[str, Any]]:
     """A real daemon on a free port, its 24 windows stored and version 1 accepted."""
     rate = 100.0
     session = simulate_session(kvh_like_truth(4), "24", latitude_deg=50.0, seed=4, rate_hz=rate,
@@ -46,31 +43,14 @@ def daemon(tmp_path: Path) -> Iterator[tuple[str, Any]]:
         scheduler=SchedulerSettings(min_positions=100, min_new_positions=100),  # manual only
         api={"port": 0, "token": TOKEN},
     )
-    service = build_service(settings)
-    server = make_server(service)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 60
-        while not server.started:
-            assert time.monotonic() < deadline, "server did not start"
-            time.sleep(0.02)
-        base = f"http://127.0.0.1:{server.servers[0].sockets[0].getsockname()[1]}"
-        service.reader.start()
-        while service.reader.health().counters.bytes_in < len(data):
-            assert time.monotonic() < deadline, "replay did not finish"
-            time.sleep(0.05)
-        service.ingest.flush()
+    with serve(settings) as (base, service):
+        replay(service, len(data))
         with httpx.Client(base_url=base, timeout=30) as http:
             auth = {"Authorization": f"Bearer {TOKEN}"}
             assert http.post("/recalibrate", headers=auth).status_code == 202
             service.scheduler.wait(timeout=120)
             assert http.get("/coefficients").json()["version"] == 1
         yield base, service
-    finally:
-        server.should_exit = True
-        thread.join(10)
-        service.close()
 
 
 @pytest.fixture()

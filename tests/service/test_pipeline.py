@@ -1,8 +1,6 @@
 """The service end to end: replay:// port -> pipeline -> SQLite -> gate -> publish -> HTTP."""
 
 import json
-import threading
-import time
 
 import httpx
 import numpy as np
@@ -22,7 +20,6 @@ from service.config import (
     Settings,
     SiteSettings,
 )
-from service.daemon import build_service, make_server
 
 TOKEN = "pipeline-test-token-0123456789"
 
@@ -60,7 +57,7 @@ def capture(tmp_path):
     return path, len(data), rate, truth
 
 
-def test_daemon_over_a_real_http_server(tmp_path, capture):
+def test_daemon_over_a_real_http_server(tmp_path, capture, serve, replay):
     path, size, rate, truth = capture
     settings = Settings(
         database_url=f"sqlite:///{tmp_path / 'recal.db'}",
@@ -71,61 +68,42 @@ def test_daemon_over_a_real_http_server(tmp_path, capture):
         scheduler=SchedulerSettings(min_positions=100, min_new_positions=100),  # manual only
         api={"port": 0, "token": TOKEN},
     )
-    service = build_service(settings)
-    server = make_server(service)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 20
-        while not server.started:
-            assert time.monotonic() < deadline, "server did not start"
-            time.sleep(0.02)
-        port = server.servers[0].sockets[0].getsockname()[1]
-        base = f"http://127.0.0.1:{port}"
-        with httpx.Client(base_url=base, timeout=30) as http:
-            assert http.get("/coefficients").status_code == 404  # nothing accepted yet
-            service.reader.start()
-            while service.reader.health().counters.bytes_in < size:
-                assert time.monotonic() < deadline + 30, "replay did not finish"
-                time.sleep(0.05)
-            service.ingest.flush()
-            health = http.get("/health").json()
-            assert health["status"] == "ok" and health["positions"] == 24
-            # the motion between the windows is stored with them (23 slews, none dropped)
-            part = health["service"]
-            assert part["slews"] == 23 and not any(part["slews_dropped"].values())
-            assert http.post("/recalibrate").status_code == 401  # writes need the token
-            r = http.post("/recalibrate", headers={"Authorization": f"Bearer {TOKEN}"})
-            assert r.status_code == 202
-            service.scheduler.wait(timeout=120)
-            current = http.get("/coefficients")
-            assert current.status_code == 200
-            doc = current.json()
-            version = doc["version"]
-            assert doc["accepted"] and len(doc["positions_used"]) == 24
-            coeffs = doc["document"]["coefficients"]
-            sd = np.array(doc["document"]["uncertainty"]["gyro"]["bias"])
-            err = np.array(coeffs["gyro"]["bias"]) - truth.values["gyro.bias"]
-            assert np.all(np.abs(err) < 4 * sd)
-            # with the slews every gyro coefficient is estimated: none held at the prior
-            status = doc["document"]["status"]["gyro"]
-            assert all(v == "estimated" for v in _leaves(status)), status
-            # ... within 4 sigma of the truth, in the gauge the fit holds (accelerometer frame)
-            layout = ParameterLayout(build_models(("gyro", "accel"), (), (), 25.0))
-            want = in_accel_frame(truth.to_vector(layout), layout)
-            got = CoefficientSet.from_json_dict(coeffs).to_vector(layout)
-            sdE = np.array(_leaves(doc["document"]["uncertainty"]["gyro"]["misalignment"]))
-            E = layout.term_slices()["gyro.misalignment"]
-            assert np.all(np.abs(got[E] - want[E]) < 4 * sdE)
-            # every version carries its predicted navigation impact at the site's latitude
-            impact = doc["document"]["navigation_impact"]
-            assert impact["latitude_deg"] == 40.0 and impact["change"] is None
-            assert 0 < impact["static_24h_error_nmi_1sigma"] < 50
-            assert http.get(f"/coefficients/{version}").json()["version"] == version
-            assert http.get("/coefficients/999").status_code == 404
-            published = json.loads((tmp_path / "coefficients.json").read_text())
-            assert published["version"] == version
-    finally:
-        server.should_exit = True
-        thread.join(10)
-        service.close()
+    with serve(settings) as (base, service), httpx.Client(base_url=base, timeout=30) as http:
+        assert http.get("/coefficients").status_code == 404  # nothing accepted yet
+        replay(service, size)
+        health = http.get("/health").json()
+        assert health["status"] == "ok" and health["positions"] == 24
+        # the motion between the windows is stored with them (23 slews, none dropped)
+        part = health["service"]
+        assert part["slews"] == 23 and not any(part["slews_dropped"].values())
+        assert http.post("/recalibrate").status_code == 401  # writes need the token
+        r = http.post("/recalibrate", headers={"Authorization": f"Bearer {TOKEN}"})
+        assert r.status_code == 202
+        service.scheduler.wait(timeout=120)
+        current = http.get("/coefficients")
+        assert current.status_code == 200
+        doc = current.json()
+        version = doc["version"]
+        assert doc["accepted"] and len(doc["positions_used"]) == 24
+        coeffs = doc["document"]["coefficients"]
+        sd = np.array(doc["document"]["uncertainty"]["gyro"]["bias"])
+        err = np.array(coeffs["gyro"]["bias"]) - truth.values["gyro.bias"]
+        assert np.all(np.abs(err) < 4 * sd)
+        # with the slews every gyro coefficient is estimated: none held at the prior
+        status = doc["document"]["status"]["gyro"]
+        assert all(v == "estimated" for v in _leaves(status)), status
+        # ... within 4 sigma of the truth, in the gauge the fit holds (accelerometer frame)
+        layout = ParameterLayout(build_models(("gyro", "accel"), (), (), 25.0))
+        want = in_accel_frame(truth.to_vector(layout), layout)
+        got = CoefficientSet.from_json_dict(coeffs).to_vector(layout)
+        sdE = np.array(_leaves(doc["document"]["uncertainty"]["gyro"]["misalignment"]))
+        E = layout.term_slices()["gyro.misalignment"]
+        assert np.all(np.abs(got[E] - want[E]) < 4 * sdE)
+        # every version carries its predicted navigation impact at the site's latitude
+        impact = doc["document"]["navigation_impact"]
+        assert impact["latitude_deg"] == 40.0 and impact["change"] is None
+        assert 0 < impact["static_24h_error_nmi_1sigma"] < 50
+        assert http.get(f"/coefficients/{version}").json()["version"] == version
+        assert http.get("/coefficients/999").status_code == 404
+        published = json.loads((tmp_path / "coefficients.json").read_text())
+        assert published["version"] == version
