@@ -237,9 +237,18 @@ def _fit(
     cov, _ = covariance(problem, theta, typical[:, None] * at.basis)
     sd = np.where(at.estimated, np.sqrt(np.clip(np.diag(cov), 0, None)), np.nan)
     T = typical[:, None] * at.basis
+    # degenerate: directions vanish structurally at the solution (not a weak direction that
+    # crosses FIT_INFO_MIN as theta moves)
+    degenerate = refit and _structural_rank(problem, theta, typical) < _structural_rank(
+        problem, theta0, typical
+    )
     return Fit(tuple(effects), problem, theta, report.rank, float(r @ r), report.verdict,
-               sd, cov, degenerate=at.rank < report.rank, jac=jacobian(problem, theta, T.T),
+               sd, cov, degenerate=degenerate, jac=jacobian(problem, theta, T.T),
                transform=T)  # fmt: skip
+
+
+def _structural_rank(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> int:
+    return analyze(problem, theta, typical, info_min=0.0).rank
 
 
 def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
