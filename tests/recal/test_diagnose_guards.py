@@ -105,9 +105,14 @@ def test_24_position_design_with_each_catalogue_effect_is_never_refused(effect, 
                              sensors=sensors, hidden=[CAT[effect]])  # fmt: skip
     d = diagnose(pos, CalibrationOptions(latitude_deg=45.0))  # raises nothing
     assert d.verdict and np.isfinite(d.final_chi2_red)
-    if d.suggested_effects:
-        assert d.final_chi2_red < d.chi2_red
     assert d.model_fails == ("still fails" in d.verdict)
+    if gyro_only or effect == "accel.scale_asymmetry":
+        # gyro alone: the norm sees a bias change only along Earth rate; asymmetry: |f| is
+        # nearly the f**2 pattern of accel.quadratic on this design
+        assert effect not in d.suggested_effects or d.final_chi2_red < d.chi2_red
+    else:  # with both triads and a temperature swing the design shows every other effect
+        assert d.suggested_effects[:1] == [effect], [(c.effect, c.delta_bic) for c in d.candidates]
+        assert d.final_chi2_red < min(2.0, d.chi2_red)
 
 
 def test_shupe_effect_on_the_gyro_only_24_position_design_is_found():
