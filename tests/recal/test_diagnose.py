@@ -11,6 +11,7 @@ from recal.diagnose import diagnose
 from recal.report import diagnosis_html
 from recal.simulate import TemperatureSpec, simulate_positions
 from recal.terms import catalogue_terms
+from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 
 CAT = catalogue_terms()
@@ -66,6 +67,12 @@ def test_ramp_only_temperature_cannot_tell_temperature_from_drift():
     top = {c.effect: c for c in d.candidates[:2]}
     assert set(top) == {"gyro.bias_temperature", "gyro.bias_drift"}
     assert "gyro.bias_drift" in top["gyro.bias_temperature"].similar_to
+    # not a hard delta-BIC cut: the signatures' correlation, an evidence ratio and the advice
+    (o,) = [o for o in top["gyro.bias_temperature"].confounded_with
+            if o["effect"] == "gyro.bias_drift"]  # fmt: skip
+    assert o["signature_correlation"] > 0.95 and o["evidence_ratio"] > 0
+    assert "temperature swing" in o["advice"]
+    assert "temperature swing" in format_diagnosis(d) and "temperature swing" in diagnosis_html(d)
 
 
 def test_constant_temperature_effect_is_not_identifiable():

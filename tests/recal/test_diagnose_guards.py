@@ -67,20 +67,6 @@ def test_a_true_effect_that_does_not_trade_off_carries_no_warning():
     assert top.core_shift and "wrong reason" not in d.verdict
 
 
-def test_ramp_confounds_temperature_and_drift_with_advice():
-    truth = CoefficientSet.seed_truth()
-    truth.values["gyro.bias_temperature"] = np.array([0.004, -0.003, 0.002])
-    pos = simulate_positions(truth, "random", 36, 40.0, seed=5, sensors=("gyro",),
-                             temperature=TemperatureSpec(10.0, 30.0),
-                             hidden=[CAT["gyro.bias_temperature"]])  # fmt: skip
-    d = diagnose(pos, CalibrationOptions(latitude_deg=40.0))
-    c = next(c for c in d.candidates if c.effect == "gyro.bias_temperature")
-    (o,) = [o for o in c.confounded_with if o["effect"] == "gyro.bias_drift"]
-    assert o["signature_correlation"] > 0.95 and o["evidence_ratio"] > 0
-    assert "temperature swing" in o["advice"]
-    assert "temperature swing" in format_diagnosis(d) and "temperature swing" in diagnosis_html(d)
-
-
 VALUES = {  # a few times the typical change, so each effect is well above the noise
     "gyro.bias_temperature": [0.02, -0.015, 0.01],
     "gyro.scale_temperature": [1e-4, -8e-5, 6e-5],
