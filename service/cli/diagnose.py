@@ -59,14 +59,14 @@ def format_diagnosis(d: Diagnosis) -> str:
         lines.append(f"{inv['name']:12s} {inv['rms']:11.4g} {floor:>12s} {ratio:>7s}  "
                      f"[{inv['unit']}]")  # fmt: skip
     lines += ["", f"{'candidate effect':30s} {'dBIC':>10s} {'p':>9s} {'signif.':>8s} "
-              f"{'explained':>9s} {'core shift':>11s}"]  # fmt: skip
+              f"{'explained':>9s} core shift (sigma)"]  # fmt: skip
     for c in doc["candidates"]:
         if not c["identifiable"]:
             lines.append(f"{c['effect']:30s} {'-':>10s} {'-':>9s} {'-':>8s} {'-':>9s}  "
                          f"({c['reason']})")  # fmt: skip
             continue
         t = c["trade_off"]
-        shift = f"{abs(t['shift_sigma']):.1f}s {t['coefficient']}" if t else "-"
+        shift = f"{abs(t['shift_sigma']):.1f} {t['coefficient']}" if t else "-"
         similar = f"  (same as {', '.join(c['similar_to'])})" if c["similar_to"] else ""
         lines.append(
             f"{c['effect']:30s} {c['delta_bic']:10.1f} {c['p_value']:9.2g} "
