@@ -120,6 +120,35 @@ class Candidate:
     #: itself (no context), the specific force when the accel is calibrated. Not in the JSON.
     drivers: dict[str, np.ndarray] = field(default_factory=dict)
 
+    @property
+    def disagreement(self) -> str:
+        """Why delta BIC and the p-value disagree on this candidate ('' when they agree)."""
+        if not (np.isfinite(self.delta_bic) and np.isfinite(self.p_adjusted)):
+            return ""
+        by_bic, by_p = self.delta_bic < 0, self.p_adjusted < ALPHA
+        if by_bic and not by_p:
+            head = (
+                f"delta BIC favours {self.effect} ({self.delta_bic:.1f}: chi2 falls against the "
+                f"window noise) but its family-wise p ({self.p_adjusted:.2g}) is not below "
+                f"{ALPHA:g}: the F-test weighs the fall against the misfit left after the effect "
+                "and against the number of effects tried"
+            )
+            if self.explained_fraction < 0.5:
+                return (
+                    f"{head}; it explains only {self.explained_fraction:.0%} of the excess, so "
+                    "it takes a share of a misfit that another effect explains better (see the "
+                    "first ranked); not significant"
+                )
+            return f"{head}; a fall this size is what chance gives one of many effects tried"
+        if by_p and not by_bic:
+            return (
+                f"the residual falls more than noise explains (p {self.p_adjusted:.2g}) but not "
+                f"by enough to pay for {self.effect}'s {self.added_directions} parameter(s) "
+                f"(delta BIC {self.delta_bic:+.1f}): probably real but small; more positions, or a "
+                "wider swing of its driving variable, decide"
+            )
+        return ""
+
     def to_json_dict(self) -> dict[str, Any]:
         def num(v: float) -> float | None:
             return float(v) if np.isfinite(v) else None
@@ -144,6 +173,7 @@ class Candidate:
             "warning": self.warning,
             "advice": self.advice,
             "confounded_with": self.confounded_with,
+            "disagreement": self.disagreement,
         }
 
 

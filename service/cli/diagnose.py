@@ -95,6 +95,9 @@ def format_diagnosis(d: Diagnosis) -> str:
     for c in d.candidates:
         if c.warning and (c.significant or c.effect in d.suggested_effects):
             lines.append(f"warning: {c.warning}")
+    for c in d.candidates[:3]:  # the leading candidates, where the user looks
+        if c.disagreement:
+            lines.append(f"note: {c.disagreement}")
     seen: set[frozenset[str]] = set()
     for c in d.candidates:
         for o in c.confounded_with if c.significant else []:

@@ -112,3 +112,22 @@ def test_html_report_is_self_contained():
     assert "No candidate effect is significant" in page
     names = ("http://www.w3.org/2000/svg", "http://www.w3.org/1999/xlink")  # SVG namespaces
     assert "http" not in page.replace(names[0], "").replace(names[1], "")  # no external assets
+
+
+def test_a_candidate_whose_delta_bic_and_p_value_disagree_is_explained():
+    """A real temperature effect: other candidates take a share of its misfit (large negative
+    delta BIC), but the F-test, weighing against the misfit they leave, does not rank them."""
+    truth = CoefficientSet.seed_truth()
+    truth.values["gyro.bias_temperature"] = np.array([0.0015, -0.0015, 0.0015])
+    swing = TemperatureSpec(start_c=15.0, slope_c_per_h=4.0, swing_c=8.0, period_h=0.7)
+    pos = simulate_positions(truth, "random", 24, 40.0, seed=0, temperature=swing,
+                             hidden=[CAT["gyro.bias_temperature"]])  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=40.0))
+    assert d.candidates[0].effect == "gyro.bias_temperature" and d.candidates[0].significant
+    assert d.candidates[0].disagreement == ""
+    odd = [c for c in d.candidates[1:3] if c.delta_bic < -10 and not c.significant]
+    assert odd, [(c.effect, c.delta_bic, c.p_adjusted) for c in d.candidates[:3]]
+    for c in odd:
+        assert "another effect explains better" in c.disagreement
+        assert c.to_json_dict()["disagreement"] == c.disagreement
+        assert f"note: {c.disagreement}" in format_diagnosis(d)
