@@ -66,6 +66,22 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fish", type=int, default=50, help="swarm size (default 50)")
     p.add_argument("--iterations", type=int, default=60, help="iterations per phase (default 60)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument(
+        "--slews",
+        dest="slews",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="use the slews kept by `recal positions` in POSITIONS.slews.npz (default: when "
+        "that file exists); --slews without it is an error",
+    )
+    p.add_argument(
+        "--known-rotations",
+        metavar="FILE.csv",
+        help="commanded rotations of the slews (an indexing mechanism or fixture): CSV with "
+        "axis_x,axis_y,axis_z,angle_deg[,sigma_deg][,window], one row per slew in order (row k: "
+        "from window k to k+1), axis in the first window's sensor axes; the gyro frame and scale "
+        "are then tied to the case (docs/engine.md)",
+    )
 
 
 def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
@@ -186,22 +202,6 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "Coefficients the positions cannot show are held at the prior and reported as 'held'.",
     )
     add_calibration_arguments(p)
-    p.add_argument(
-        "--slews",
-        dest="slews",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="use the slews kept by `recal positions` in POSITIONS.slews.npz (default: when "
-        "that file exists); --slews without it is an error",
-    )
-    p.add_argument(
-        "--known-rotations",
-        metavar="FILE.csv",
-        help="commanded rotations of the slews (an indexing mechanism or fixture): CSV with "
-        "axis_x,axis_y,axis_z,angle_deg[,sigma_deg][,window], one row per slew in order (row k: "
-        "from window k to k+1), axis in the first window's sensor axes; the gyro frame and scale "
-        "are then tied to the case (docs/engine.md)",
-    )
     p.add_argument(
         "-o",
         "--output",
