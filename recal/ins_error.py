@@ -265,6 +265,8 @@ SEED_TERMS: tuple[str, ...] = (
     "accel.scale", "accel.bias", "accel.misalignment", "accel.quadratic",
 )  # fmt: skip
 _SIZES = {"scale": 3, "bias": 3, "misalignment": 6, "quadratic": 3}
+#: Parameters over :data:`SEED_TERMS` (the size of a covariance in that layout).
+SEED_PARAMETERS = sum(_SIZES[n.split(".")[1]] for n in SEED_TERMS)
 
 
 def sigma_from_doc(doc: Mapping[str, Any]) -> dict[str, np.ndarray]:
@@ -345,6 +347,16 @@ def _with_vector(coeffs: CoefficientSet, vec: np.ndarray) -> CoefficientSet:
     return out
 
 
+def seed_sigma(sigma: CoefficientSet | Mapping[str, Any]) -> np.ndarray:
+    """1-sigma per coefficient (a :class:`CoefficientSet` of sigmas, or the calibrate JSON's
+    ``"uncertainty"`` layout) as a vector over :data:`SEED_TERMS`; missing or held entries are 0."""
+    sig = sigma.values if isinstance(sigma, CoefficientSet) else sigma_from_doc(sigma)
+    return np.concatenate(
+        [np.nan_to_num(np.asarray(sig.get(n, np.zeros(_SIZES[n.split(".")[1]])), float))
+         for n in SEED_TERMS]
+    )  # fmt: skip
+
+
 def predict_from_uncertainty(
     sigma: CoefficientSet | Mapping[str, Any] | None,
     coeffs: CoefficientSet,
@@ -379,11 +391,7 @@ def predict_from_uncertainty(
     else:
         if sigma is None:
             raise RecalInputError("give 1-sigma values or a covariance")
-        sig = sigma.values if isinstance(sigma, CoefficientSet) else sigma_from_doc(sigma)
-        s = np.concatenate(
-            [np.nan_to_num(np.asarray(sig.get(n, np.zeros(_SIZES[n.split(".")[1]])), float))
-             for n in SEED_TERMS]
-        )  # fmt: skip
+        s = seed_sigma(sigma)
         var = np.einsum("kai,i->ka", J * J, s * s)
     sd = np.sqrt(np.maximum(var, 0.0))
     return UncertaintyPrediction(t, sd[:, 0], sd[:, 1])
@@ -401,18 +409,19 @@ def describe_change(
     new_name: str = "B",
 ) -> str:
     """One sentence comparing the predicted static errors of loading ``new`` instead of
-    ``old``, taking ``new`` as the truth (its own error is then its uncertainty)."""
-    p_old = predict_static_error(old, new, latitude_deg, height_m, attitude_rpy_deg, hours)
-    text = f"with {new_name} as the truth, {old_name} gives a predicted {hours:g} h static error"
-    text += f" of {p_old.final_nmi:.2f} nmi (max {p_old.max_nmi:.2f})"
+    ``old``, taking ``new`` as the truth (its own error is then its uncertainty, ``sigma_new``,
+    taken as independent 1-sigmas)."""
     if sigma_new is None:
-        return f"{text}; loading {new_name} removes it (0 nmi if {new_name} is exact)"
-    u = predict_from_uncertainty(sigma_new, new, latitude_deg, height_m, attitude_rpy_deg, hours)
-    return (
-        f"loading {new_name} instead of {old_name} changes the predicted {hours:g} h static "
-        f"error from {p_old.final_nmi:.2f} to {u.final_nmi:.2f} nmi: the calibration "
-        f"uncertainty of {new_name} alone allows {u.final_nmi:.2f} nmi (1 sigma)"
-    )
+        p_old = predict_static_error(old, new, latitude_deg, height_m, attitude_rpy_deg, hours)
+        return (
+            f"with {new_name} as the truth, {old_name} gives a predicted {hours:g} h static "
+            f"error of {p_old.final_nmi:.2f} nmi (max {p_old.max_nmi:.2f}); loading {new_name} "
+            f"removes it (0 nmi if {new_name} is exact)"
+        )
+    cov = np.diag(seed_sigma(sigma_new) ** 2)
+    impact = navigation_impact(new, cov, latitude_deg, height_m, attitude_rpy_deg, hours,
+                               old=old, from_version=old_name)  # fmt: skip
+    return impact.sentence(new_name)
 
 
 def schuler_amplitude_m(
@@ -477,23 +486,23 @@ class NavigationImpact:
             return False
         return self.error_m_1sigma > self.accepted_error_m_1sigma + margin_nmi * NMI_M
 
-    def sentence(self) -> str:
+    def sentence(self, this: str = "this version") -> str:
         h = f"{self.hours:g} h"
         text = (
-            f"the calibration uncertainty of this version allows a {h} static error of "
+            f"the calibration uncertainty of {this} allows a {h} static error of "
             f"{self.error_nmi_1sigma:.2f} nmi (1 sigma) at {self.latitude_deg:.1f} deg"
         )
         if self.from_version is not None and self.old_error_m is not None:
             v = self.from_version
             name = f"version {v}" if isinstance(v, int) else v
             text = (
-                f"loading this version instead of {name} changes the predicted {h} static error "
+                f"loading {this} instead of {name} changes the predicted {h} static error "
                 f"from {self.old_error_m / NMI_M:.2f} to {self.error_nmi_1sigma:.2f} nmi; " + text
             )
             if not self.significant:
                 text += (
-                    f"; the two versions differ by less than this uncertainty: {name} is as "
-                    "good, within what this calibration can tell"
+                    f"; the two differ by less than this uncertainty: {name} is as good, "
+                    "within what this calibration can tell"
                 )
         if self.exact:
             text += f" ({len(self.exact)} coefficient(s) counted as exact: {', '.join(self.exact)})"

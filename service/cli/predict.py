@@ -76,7 +76,14 @@ def run(args: argparse.Namespace) -> int:
 
     from recal.alignment import parse_attitude
     from recal.errors import RecalInputError
-    from recal.ins_error import SEED_TERMS, complete_seed_set, navigation_impact, sigma_from_doc
+    from recal.ins_error import (
+        SEED_PARAMETERS,
+        SEED_TERMS,
+        complete_seed_set,
+        navigation_impact,
+        seed_sigma,
+        sigma_from_doc,
+    )
     from recal.navigation import NMI_M
 
     if not -90.0 <= args.latitude <= 90.0:
@@ -92,11 +99,10 @@ def run(args: argparse.Namespace) -> int:
             "predict the change, or pass a `recal calibrate --json` output"
         )
     new, filled = complete_seed_set(new, old)
-    sigma = sigma_from_doc(sigma_doc) if sigma_doc else {}
-    var = np.concatenate([np.asarray(sigma.get(n, np.zeros(len(new.values[n]))), float) ** 2
-                          for n in SEED_TERMS])  # fmt: skip
-    exact = [] if sigma_doc else ["all (no uncertainties given)"]
+    var = seed_sigma(sigma_doc) ** 2 if sigma_doc else np.zeros(SEED_PARAMETERS)
+    exact = ["all (no uncertainties given)"]
     if sigma_doc:
+        sigma = sigma_from_doc(sigma_doc)
         exact = [n for n in SEED_TERMS if n not in sigma or not np.any(sigma[n])]
     if old is not None:
         old, _ = complete_seed_set(old, new)
