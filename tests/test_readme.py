@@ -40,7 +40,9 @@ def _examples(text: str) -> list[tuple[str, set[str]]]:
 def test_the_synopsis_lists_every_flag_the_examples_use() -> None:
     text = README.read_text()
     synopsis = _synopsis(text)
-    synopsis["diagnose"] |= synopsis["calibrate"] - {"-o"}  # "[calibrate's options, no output file]"
+    synopsis["diagnose"] |= synopsis["calibrate"] - {
+        "-o"
+    }  # "[calibrate's options, no output file]"
     calls = _examples(text)
     assert len(calls) > 10
     missing = sorted(
