@@ -11,6 +11,16 @@ median of the statistic over it, the idea of imu_tk), given as a :class:`NoiseFl
 none of these, learned from the recording itself by :func:`estimate_noise_floor` (the median
 trace of its quietest blocks; :func:`detect_static` does that first pass itself).
 
+Per-triad stillness: a stretch where the accelerometer is quiet but the gyro is not (a unit held
+by hand: the tremor shows on the gyro, far less on gravity) is still a pose for the
+accelerometer. A second track judges the accelerometer alone; each of its runs in which the
+both-triad track kept no window becomes an *accelerometer-only* window (``Window.gyro_still``
+False, column ``gyro_still`` = 0): the accelerometer fit uses it, the gyro's static invariants do
+not, and the slews may still start and end there. Runs where both triads are still give windows
+exactly as before (a turn about the vertical, which the accelerometer cannot see, still splits
+two poses). :class:`DetectionReport` counts the accelerometer's still stretches (the poses seen)
+and says what became of each.
+
 Faults: an invalid-status frame, or a sequence gap (``lost_before > 0``), longer than
 ``max_gap_frames`` (default 5) *splits* a static run like a motion edge (with the same edge
 trim). A piece that is then too short is rejected and counted under that fault. Shorter holes are
@@ -19,7 +29,8 @@ window's ``frames_lost`` / ``frames_invalid``.
 
 Each window also gets the standard error of its means with correlated noise included, from
 Allan statistics over blocks of its own frames; :func:`pooled_standard_errors` pools them over a
-recording (docs/engine.md, "Correlated noise").
+recording. The noise modelling lives in :mod:`recal.noise` (docs/engine.md, "Correlated noise");
+it is imported here for the detector and for the names other modules import from here.
 
 :class:`StaticDetector` is the one implementation; :func:`detect_static` feeds it the whole
 recording in slices. Decisions are made from chunk-independent sums (van Herk blocks aligned on
@@ -36,6 +47,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from recal.errors import RecalInputError
+from recal.noise import allan_sums as _allan_sums
+from recal.noise import pooled_standard_errors
+from recal.noise import standard_errors as _standard_errors
 from recal.positions import (
     ACCEL_COLUMNS,
     ACCEL_SEM_COLUMNS,
@@ -46,12 +60,26 @@ from recal.positions import (
 )
 
 #: Reasons a static run is rejected, as keys of :attr:`DetectionReport.rejected`.
-REJECT_REASONS = ("too_short", "invalid_status", "sequence_gap", "rotating")
+#: "gyro_not_still": the gyro was never quiet long enough in a still stretch of the accelerometer,
+#: which is kept as an accelerometer-only window (rejected for the gyro, used for the accel).
+REJECT_REASONS = ("too_short", "invalid_status", "sequence_gap", "rotating", "gyro_not_still")
+#: Each reason in plain words, for summaries and reports.
+REASON_TEXT = {
+    "too_short": "too short",
+    "invalid_status": "cut by invalid frames",
+    "sequence_gap": "cut by a sequence gap",
+    "rotating": "rotating (mean gyro off the reference)",
+    "gyro_not_still": "gyro not still (used for the accelerometer only)",
+}
 #: Rejected stretches listed in :attr:`DetectionReport.rejected_stretches` at most (the counts in
 #: ``rejected`` stay complete): a plot needs them, and a noisy recording can have very many.
 MAX_REJECTED_STRETCHES = 10_000
+#: Rejected stretches the summary lists one by one (the rest are counted by reason).
+MAX_LISTED_REJECTIONS = 20
 #: Columns beyond conventions section 4 that :func:`windows_to_columns` adds.
-EXTRA_COLUMNS = ("frames_lost", "frames_invalid")
+#: ``gyro_still``: 1 where both triads were still, 0 for an accelerometer-only window (the gyro
+#: static invariants leave that row out; see recal.problem).
+EXTRA_COLUMNS = ("frames_lost", "frames_invalid", "gyro_still")
 
 _RATE_PROBE = 1024  # time steps the sample rate is derived from (the same for every chunking)
 _SLICE = 1 << 16  # frames processed per internal step: bounds the temporaries
@@ -142,6 +170,11 @@ class DetectorConfig:
     gyro_rate_max: when set, reject a window whose mean gyro differs from the reference (the
         still-period mean when learning, else zero) by more than this, in gyro units (vector
         norm). Variance cannot see a steady rotation about the gravity vector; this can.
+    accel_only_windows: per-triad stillness (default on). A still stretch of the accelerometer
+        in which the gyro never stays under its threshold long enough for a window (hand
+        tremor) becomes an accelerometer-only window (``Window.gyro_still`` False) instead of
+        being dropped. Off: every window needs both triads still. A gyro_threshold of inf
+        lets the gyro veto nothing.
     """
 
     window_s: float | None = None
@@ -155,6 +188,7 @@ class DetectorConfig:
     max_gap_frames: int = DEFAULT_MAX_GAP_FRAMES
     gyro_rate_max: float | None = None
     noise_floor: NoiseFloor | None = None
+    accel_only_windows: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.threshold_k) and self.threshold_k > 0):
@@ -173,7 +207,7 @@ class DetectorConfig:
                 raise RecalInputError(f"detector {name} must be a positive number, not {value}")
         for name in ("accel_threshold", "gyro_threshold"):
             value = getattr(self, name)
-            if value is not None and not (math.isfinite(value) and value >= 0):
+            if value is not None and (math.isnan(value) or value < 0):
                 raise RecalInputError(f"detector {name} must be a number >= 0, not {value}")
         trim = self.edge_trim_s
         if trim is not None and not (math.isfinite(trim) and trim >= 0):
@@ -235,6 +269,9 @@ class Window:
     block_frames: int = 0
     allan_sq: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     allan_terms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: False for an accelerometer-only window: the accel was still, the gyro was not (tremor).
+    #: Its gyro mean is still a fair rest reference for the slews, not a static gyro reading.
+    gyro_still: bool = True
 
     @property
     def duration_s(self) -> float:
@@ -260,6 +297,11 @@ class DetectionReport:
     gyro_reference: np.ndarray | None = None
     duration_s: float = 0.0
     short_stretches: int = 0  # quiet stretches too short to give a window (no fault involved)
+    #: Still stretches of the accelerometer (the poses seen; with per-triad stillness), and how
+    #: many of them gave a window (for both triads or for the accelerometer only).
+    still_stretches: int = 0
+    still_stretches_used: int = 0
+    accel_only_windows: int = 0  # windows kept for the accelerometer only (gyro not still)
     longest_short_frames: int = 0  # the longest of them, quiet frames
     edge_trim_frames: int = 0
     required_frames: int = 0
@@ -287,6 +329,27 @@ class DetectionReport:
         keep = self.longest_short_frames - 2 * self.edge_trim_frames
         return keep / self.sample_rate_hz if keep >= 2 else None
 
+    def rejection_lines(self, limit: int = MAX_LISTED_REJECTIONS) -> list[str]:
+        """One line per rejected stretch, in time order, saying why (at most ``limit``; then
+        the count of the rest by reason)."""
+        stretches = sorted(self.rejected_stretches)
+        rate = self.sample_rate_hz
+        need = (self.required_frames + 2 * self.edge_trim_frames) / rate if rate else None
+        lines = []
+        for a, b, why in stretches[:limit]:
+            text = REASON_TEXT.get(why, why)
+            if why == "too_short" and need:
+                text += f" (a window needs {need:.3g} s of still frames)"
+            lines.append(f"  {a:.2f}-{b:.2f} s ({b - a:.2f} s): {text}")
+        rest = stretches[limit:]
+        if rest:
+            by = {}
+            for _, _, why in rest:
+                by[why] = by.get(why, 0) + 1
+            more = ", ".join(f"{REASON_TEXT.get(k, k)} {v}" for k, v in by.items())
+            lines.append(f"  ... and {len(rest)} more stretches: {more}")
+        return (["rejected stretches (start-end, length: why):", *lines]) if lines else []
+
     def summary_lines(self) -> list[str]:
         """Plain-words summary, a few lines, for a log or the command line."""
         rate = f"{self.sample_rate_hz:.6g} Hz" if self.sample_rate_hz else "rate unknown"
@@ -301,7 +364,21 @@ class DetectionReport:
                 f"({how}): accel {self.accel_threshold:.4g}, gyro {self.gyro_threshold:.4g}"
             )
         reasons = ", ".join(f"{k} {v}" for k, v in self.rejected.items())
-        lines.append(f"windows: {self.windows_kept} kept; rejected: {reasons}")
+        kept = f"{self.windows_kept} kept"
+        if self.accel_only_windows:
+            both = self.windows_kept - self.accel_only_windows
+            kept += (
+                f" ({both} with both triads still, {self.accel_only_windows} for the "
+                "accelerometer only: gyro not still)"
+            )
+        lines.append(f"windows: {kept}; rejected: {reasons}")
+        if self.still_stretches:
+            lines.append(
+                f"poses: {self.still_stretches} still stretches of the accelerometer seen, "
+                f"{self.still_stretches_used} used, "
+                f"{self.still_stretches - self.still_stretches_used} without any window"
+            )
+        lines += self.rejection_lines()
         if self.short_stretches and self.sample_rate_hz:
             rate = self.sample_rate_hz
             need = (self.required_frames + 2 * self.edge_trim_frames) / rate
@@ -430,6 +507,18 @@ class StaticDetector:
         self._prev_m = False
         self._piece: _Piece | None = None
         self._out: list[Window] = []
+        # Per-triad stillness: a second track on the accelerometer alone (the gyro vetoes
+        # nothing there); its runs the both-triad track left without a window become
+        # accelerometer-only windows (see _merge_accel).
+        self._accel_track: StaticDetector | None = None
+        if config.accel_only_windows and self._thr_g != math.inf:
+            track = replace(config, gyro_threshold=math.inf, accel_only_windows=False)
+            self._accel_track = StaticDetector(track)
+        #: (start_s, end_s, None for a both-triad window, else the rejected stretch) of what
+        #: this track decided near the accel track's undecided frames; pruned as it advances.
+        self._covered: list[tuple[float, float, tuple | None]] = []
+        self._stretches_seen = 0  # own rejected stretches already in _covered
+        self._track_seen = 0  # the accel track's rejected stretches already merged
 
     # ---- public ---------------------------------------------------------------------------
     def feed(
@@ -470,6 +559,8 @@ class StaticDetector:
             part = {k: (None if v is None else v[sl]) for k, v in extra.items()}
             self._append(self._rows(t[sl], g[sl], a[sl], **part))
             self._process(final=False)
+        if self._accel_track is not None:
+            self._merge_accel(self._accel_track.feed(t, g, a, **extra))
         out, self._out = self._out, []
         return out
 
@@ -478,13 +569,87 @@ class StaticDetector:
         if not self._finished:
             self._process(final=True)
             self._finished = True
+            if self._accel_track is not None:
+                self._merge_accel(self._accel_track.flush())
         out, self._out = self._out, []
         return out
 
     @property
     def buffered_frames(self) -> int:
         """Frames held in memory (not yet decided, or needed by a moving window)."""
-        return int(self._data.shape[0])
+        track = 0 if self._accel_track is None else self._accel_track.buffered_frames
+        return int(self._data.shape[0]) + track
+
+    # ---- per-triad stillness ----------------------------------------------------------------
+    def _merge_accel(self, accel_windows: list[Window]) -> None:
+        """Fold the accel track's decisions into this (both-triad) track's windows and report.
+
+        Both-triad quiet frames are a subset of the accel's, and both tracks trim alike, so
+        every both-triad window or rejection inside an accel run is decided no later than the
+        run itself: by now this track has decided all that overlaps what the accel track
+        returns. An accel window that overlaps a both-triad window is that pose seen again
+        (dropped); one that does not becomes an accelerometer-only window, and the both-triad
+        rejections inside it (tremor cut the gyro's quiet frames short) give way to one
+        "gyro_not_still" stretch. An accel-track rejection overlapping nothing of this track
+        is a pose the gyro hid from it (listed); otherwise this track has listed it already.
+        """
+        rep, track = self.report, self._accel_track.report
+        own = rep.rejected_stretches
+        self._covered += [(w.start_s, w.end_s, None) for w in self._out]
+        self._covered += [(a, b, st) for st in own[self._stretches_seen :] for a, b in [st[:2]]]
+        drop: set[int] = set()
+        for w in accel_windows:
+            hit = self._overlapping(w.start_s, w.end_s)
+            rep.still_stretches += 1
+            rep.still_stretches_used += 1
+            if any(c[2] is None for c in hit):
+                continue  # the both-triad windows use this pose
+            for _, _, st in hit:
+                if id(st) not in drop:
+                    drop.add(id(st))
+                    rep.rejected[st[2]] -= 1
+            self._out.append(replace(w, gyro_still=False))
+            rep.windows_kept += 1
+            rep.accel_only_windows += 1
+            rep.rejected["gyro_not_still"] += 1
+            rep._add_stretches(w.start_s, w.end_s, "gyro_not_still")
+        for a, b, why in track.rejected_stretches[self._track_seen :]:
+            hit = self._overlapping(a, b)
+            rep.still_stretches += 1
+            if any(c[2] is None for c in hit):
+                rep.still_stretches_used += 1  # e.g. a turn inside it: both sides kept
+            elif not hit:
+                rep.rejected[why] += 1
+                rep._add_stretches(a, b, why)
+        self._track_seen = len(track.rejected_stretches)
+        if drop:
+            rep.rejected_stretches = [st for st in own if id(st) not in drop]
+            self._covered = [c for c in self._covered if c[2] is None or id(c[2]) not in drop]
+        self._stretches_seen = len(rep.rejected_stretches)
+        self._out.sort(key=lambda w: w.start_index)
+        self._prune_covered()
+
+    def _overlapping(self, start_s: float, end_s: float) -> list[tuple]:
+        return [c for c in self._covered if c[0] <= end_s and c[1] >= start_s]
+
+    def _prune_covered(self) -> None:
+        """Forget what ends before the accel track's first undecided frame."""
+        track = self._accel_track
+        if track is None or track._geom is None or track._learning:
+            return
+        open_at = [track._next_m]
+        if track._c_open is not None:
+            open_at.append(track._c_open)
+        if track._q_open is not None:
+            open_at.append(track._q_open[0])
+        if track._piece is not None:
+            open_at.append(track._piece.first)
+        first = min(open_at)
+        if first >= track._received:
+            self._covered = []
+            return
+        t = float(track._times(np.array([first]))[0])
+        self._covered = [c for c in self._covered if c[1] >= t]
 
     # ---- input ----------------------------------------------------------------------------
     def _rows(
@@ -1071,10 +1236,12 @@ def detect_static(
 
 
 def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
-    """Positions-table columns (conventions section 4) plus frames_lost and frames_invalid.
+    """Positions-table columns (conventions section 4) plus :data:`EXTRA_COLUMNS`.
 
-    The ``*_sem`` columns are :func:`pooled_standard_errors` over these windows. The
-    temperature columns appear only when every window has a finite value.
+    The ``*_sem`` columns are :func:`pooled_standard_errors` over these windows; the gyro's are
+    pooled separately over the accelerometer-only windows (``gyro_still`` 0), whose gyro noise
+    is the hand's tremor, not the sensor's. The temperature columns appear only when every
+    window has a finite value.
     """
     cols: dict[str, np.ndarray] = {
         "start_s": np.array([w.start_s for w in windows], dtype=float),
@@ -1082,6 +1249,11 @@ def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
         "samples": np.array([w.samples for w in windows], dtype=float),
     }
     gyro_sem, accel_sem = pooled_standard_errors(windows)
+    still = np.array([w.gyro_still for w in windows], dtype=bool)
+    if still.any() and not still.all():
+        for group in (still, ~still):
+            idx = np.flatnonzero(group)
+            gyro_sem[idx] = pooled_standard_errors([windows[i] for i in idx])[0]
     for names, values in (
         (GYRO_COLUMNS, [w.gyro for w in windows]),
         (ACCEL_COLUMNS, [w.accel for w in windows]),
@@ -1099,150 +1271,8 @@ def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
             cols[name] = values
     cols["frames_lost"] = np.array([w.frames_lost for w in windows], dtype=float)
     cols["frames_invalid"] = np.array([w.frames_invalid for w in windows], dtype=float)
+    cols["gyro_still"] = still.astype(float)
     return cols
-
-
-# ---- the standard error of a window mean, correlated noise included -----------------------
-_GM_SIGNIFICANCE = 9.21  # chi-square(2) at 1 %: the Gauss-Markov part must earn its 2 parameters
-_TAU_PER_OCTAVE = 4
-
-
-def _allan_sums(blocks: list[np.ndarray], block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Overlapping Allan sums of one window from its complete blocks' sums (k, 7).
-
-    Row j averages over m = 2^j blocks: sum over k of (ybar_(k+m) - ybar_k)^2 / 2 per axis, and
-    the number of terms. Blocks missing more than half their frames are left out.
-    """
-    if not blocks:
-        return np.zeros((0, 6)), np.zeros(0)
-    b = np.concatenate(blocks)
-    b = b[b[:, 0] >= (block + 1) // 2]
-    y = b[:, 1:] / b[:, :1] if b.size else np.zeros((0, 6))
-    c = np.concatenate((np.zeros((1, 6)), np.cumsum(y, axis=0)))
-    sq, terms = [], []
-    m = 1
-    while 2 * m <= y.shape[0]:
-        avg = (c[m:] - c[:-m]) / m
-        d = avg[m:] - avg[:-m]
-        sq.append(0.5 * (d * d).sum(axis=0))
-        terms.append(d.shape[0])
-        m *= 2
-    if not sq:
-        return np.zeros((0, 6)), np.zeros(0)
-    return np.array(sq), np.array(terms, dtype=float)
-
-
-def _gm_allan(x: np.ndarray) -> np.ndarray:
-    """Allan variance of a unit-variance Gauss-Markov process at averaging time x * tau."""
-    r = -np.expm1(-x) / x
-    return 2.0 / x * (1.0 - r) - r * r
-
-
-def _gm_mean_var(x: np.ndarray) -> np.ndarray:
-    """Variance of the mean of a unit-variance Gauss-Markov process over x * tau."""
-    return 2.0 / x * (1.0 + np.expm1(-x) / x)
-
-
-def _fit_noise(avar: np.ndarray, dof: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
-    """Fit AVAR(t) = q / t + s2 * G(t / tau) to pooled Allan variances (one axis).
-
-    t in frames; weights dof / 2 on the relative misfit (an Allan variance from dof independent
-    differences has relative variance about 2 / dof). Returns (q, s2, tau): white level
-    (variance x frames), Gauss-Markov variance and correlation time (frames); s2 = 0 unless
-    the Gauss-Markov part lowers the misfit significantly. tau is searched up to the longest
-    averaging time seen: a longer correlation is not identifiable from the data.
-    """
-    ok = (avar > 0) & (dof > 0)
-    if not ok.any():
-        return 0.0, 0.0, 1.0
-    a, w, t = avar[ok], np.sqrt(dof[ok] / 2), t[ok]
-    white = w / t / a
-    q = max(float(white @ w / (white @ white)), 0.0)
-    best = (float(np.sum((w - q * white) ** 2)), q, 0.0, 1.0)
-    ssr_white = best[0]
-    if t.shape[0] >= 3:
-        octaves = np.log2(t[-1] / t[0]) + 1
-        taus = t[0] * 2.0 ** (np.arange(round(octaves * _TAU_PER_OCTAVE) + 1) / _TAU_PER_OCTAVE)
-        # Two-column least squares for every tau at once, through the 2 x 2 normal equations.
-        gm = w * _gm_allan(t[None, :] / taus[:, None]) / a  # (taus, levels)
-        a11, a12, a22 = white @ white, gm @ white, np.einsum("ij,ij->i", gm, gm)
-        b1, b2 = white @ w, gm @ w
-        det = a11 * a22 - a12 * a12
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c1 = (a22 * b1 - a12 * b2) / det
-            c2 = (a11 * b2 - a12 * b1) / det
-        ssr = w @ w - 2 * (c1 * b1 + c2 * b2) + c1 * c1 * a11 + 2 * c1 * c2 * a12 + c2 * c2 * a22
-        # Only both-positive fits: the one-column ones are covered by the white-only fit.
-        usable = (c1 >= 0) & (c2 > 0) & np.isfinite(ssr) & (det > 0)
-        if usable.any():
-            i = int(np.argmin(np.where(usable, ssr, np.inf)))
-            if ssr[i] < best[0]:
-                best = (float(ssr[i]), float(c1[i]), float(c2[i]), float(taus[i]))
-        if ssr_white - best[0] < _GM_SIGNIFICANCE:
-            return q, 0.0, 1.0
-    return best[1], best[2], best[3]
-
-
-def _standard_errors(
-    samples: np.ndarray,
-    std: np.ndarray,
-    allan: Sequence[tuple[np.ndarray, np.ndarray]],
-    block: int,
-) -> np.ndarray:
-    """(M, 6) standard errors of the window means (gyro x y z, accel x y z), input units.
-
-    The Allan variances of all M windows are pooled per axis and fitted with white noise plus a
-    Gauss-Markov process; that gives the variance of a mean over n frames, var(n). Relative to
-    white noise it is F(n) = var(n) n / s^2 (s^2: the pooled per-sample variance), and each
-    window gets std_w sqrt(F(n_w) / n_w): the shape from the recording, the level its own.
-    Without any Allan statistics (windows shorter than two blocks) it is std / sqrt(n).
-    """
-    samples = np.asarray(samples, dtype=float)
-    white_sem = std / np.sqrt(samples)[:, None]
-    levels = max((a[0].shape[0] for a in allan), default=0)
-    if levels == 0 or samples.size == 0:
-        return white_sem
-    sq = np.zeros((levels, 6))
-    terms = np.zeros(levels)
-    for a_sq, a_terms in allan:
-        sq[: a_sq.shape[0]] += a_sq
-        terms[: a_terms.shape[0]] += a_terms
-    m = 2.0 ** np.arange(levels)
-    t = block * m  # averaging time, frames
-    dof = terms / m  # about one independent difference per m overlapping ones
-    dof_s = np.maximum(samples - 1, 0)
-    pooled_var = (dof_s @ std**2) / max(dof_s.sum(), 1.0)
-    out = white_sem.copy()
-    for c in range(6):
-        if pooled_var[c] <= 0:
-            continue  # noiseless: 0 stays 0
-        avar = np.divide(sq[:, c], terms, out=np.zeros(levels), where=terms > 0)
-        q, s2, tau = _fit_noise(avar, dof, t)
-        var_mean = q / samples + s2 * _gm_mean_var(samples / tau)
-        factor = var_mean * samples / pooled_var[c]
-        out[:, c] = std[:, c] * np.sqrt(factor / samples)
-    return out
-
-
-def pooled_standard_errors(windows: Sequence[Window]) -> tuple[np.ndarray, np.ndarray]:
-    """(M, 3) gyro and (M, 3) accel standard errors of the window means, input units.
-
-    Correlated noise included: the windows' Allan statistics are pooled over the recording
-    (see docs/engine.md, "Correlated noise"). Windows with another block length than the
-    first one's are not pooled with it; each such group is pooled on its own.
-    """
-    out = np.zeros((len(windows), 6))
-    blocks = np.array([w.block_frames for w in windows], dtype=np.int64)
-    for block in np.unique(blocks):
-        idx = np.flatnonzero(blocks == block)
-        group = [windows[i] for i in idx]
-        out[idx] = _standard_errors(
-            np.array([w.samples for w in group], dtype=float),
-            np.array([np.concatenate((w.gyro_std, w.accel_std)) for w in group]).reshape(-1, 6),
-            [(w.allan_sq, w.allan_terms) for w in group],
-            max(int(block), 1),
-        )
-    return out[:, :3], out[:, 3:]
 
 
 # ---- the noise floor, learned from the recording itself ------------------------------------
