@@ -27,6 +27,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from recal.coefficients import CoefficientSet, layout_like
+from recal.consider import consider_covariance, prior_sigma, sensor_class
+from recal.convergence import fixed_point, swarm_convergence
 from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
@@ -91,6 +93,17 @@ class CalibrationOptions:
     refuse_at_solution: bool = True
 
 
+class HeldUncertainty(NamedTuple):
+    """The prior's 1-sigma that the held coefficients carry into ``CalibrationResult.covariance``."""
+
+    sensor_class: str  # which defaults a data-derived prior used (recal.consider)
+    source: dict[str, str]  # term name -> where its prior sigma came from
+    sigma: np.ndarray  # (D,) prior 1-sigma per parameter
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
+
+
 @dataclass
 class CalibrationResult:
     coefficients: CoefficientSet
@@ -108,6 +121,11 @@ class CalibrationResult:
     prior_source: str
     mcs: MCSResult | None = None
     notes: list[str] = field(default_factory=list)
+    #: the window noise's part of ``covariance`` alone (``covariance`` adds the held part's)
+    covariance_measurement: np.ndarray | None = None
+    held_uncertainty: HeldUncertainty | None = None
+    #: {"converged": bool, "reason": str | None, ...} (recal.convergence)
+    convergence: dict[str, Any] = field(default_factory=dict)
 
     @property
     def layout(self) -> ParameterLayout:
@@ -160,15 +178,21 @@ class CalibrationResult:
     def uncertainty_kind(self) -> str:
         """What the 1-sigma values mean, and which noise they come from."""
         sources = ", ".join(sorted(set(self.problem.sigma_source.values())))
+        held = (
+            "; plus what the held coefficients' prior uncertainty moves them by (consider "
+            "covariance); a held coefficient's 1-sigma is its prior's"
+        )
         if self.problem.noise_known:
             return (
                 f"Gauss-Newton 1-sigma from the window noise ({sources}) propagated through the "
-                "invariants (scaled by max(1, chi2_red)); measurement uncertainty of each "
-                "estimated value"
+                "invariants (scaled by max(1, chi2_red))" + held
             )
         if self.observability.redundancy == 0:
             return "unknown: no noise columns and no redundancy to estimate the noise from"
-        return f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})"
+        return (
+            f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})"
+            + held
+        )
 
     def to_json_dict(self) -> dict[str, Any]:
         terms = self.terms
@@ -195,6 +219,11 @@ class CalibrationResult:
             "wall_time_s": self.wall_time_s,
             "notes": self.notes,
         }
+        if self.convergence:
+            out["converged"] = bool(self.convergence.get("converged"))
+            out["convergence"] = dict(self.convergence)
+        if self.held_uncertainty is not None:
+            out["held_uncertainty"] = self.held_uncertainty.to_json_dict()
         if self.mcs is not None:
             split = CoefficientSet.from_vector
             out["mc"] = {
@@ -282,6 +311,67 @@ def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: flo
             theta[slices[f"{m.sensor}.scale"]] = fit[0]
             theta[slices[f"{m.sensor}.bias"]] = fit[1]
     return theta
+
+
+def describe_prior(
+    positions: Positions,
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    lat: float,
+    h: float,
+    given: CoefficientSet | None = None,
+    gyro_from_slews: bool = False,
+) -> str:
+    """What the prior ``theta0`` is, true to its values: the given file and the terms it lacks
+    (taken from the data), how each triad's scale and bias were derived from the data (an
+    ellipsoid fit, or a common scale from the median norm when the positions cannot support
+    one; the slews for a gyro blind to Earth rate), and which other terms start at zero."""
+    slices = layout.term_slices()
+    from_data = [t for m in layout.models for t in m.terms
+                 if given is None or given.values.get(t.name) is None]  # fmt: skip
+    parts = []
+    refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
+    for m in layout.models:
+        if not any(t.name in (f"{m.sensor}.scale", f"{m.sensor}.bias") for t in from_data):
+            continue
+        if m.sensor == "gyro" and gyro_from_slews:
+            how = "common scale from the slews, bias the mean window output"
+        elif ellipsoid_start(positions.gyro if m.sensor == "gyro" else positions.accel,
+                             refs[m.sensor]) is None:  # fmt: skip
+            how = "common scale from the median norm, bias zero (no ellipsoid fit: too few or too alike positions)"
+        else:
+            how = "scale and bias from an ellipsoid fit"
+        parts.append(f"{m.sensor}: {how}")
+    zero = [t.name for t in from_data if t.group not in ("scale", "bias")
+            and np.all(theta0[slices[t.name]] == np.asarray(t.neutral, float))]  # fmt: skip
+    if zero:
+        parts.append(f"{', '.join(zero)} zero")
+    other = [t.name for t in from_data if t.group not in ("scale", "bias") and t.name not in zero]
+    if other:
+        parts.append(f"{', '.join(other)} from the data")
+    if given is None:
+        return f"data-derived ({'; '.join(parts)})"
+    source = str(given.metadata.get("source", "given prior"))
+    return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
+
+
+def held_moved(
+    layout: ParameterLayout, theta0: np.ndarray, theta: np.ndarray, report: ObservabilityReport
+) -> str | None:
+    """A note naming the held coefficients whose value is not the prior's: a coefficient is
+    held when less than half of it lies in the observable directions, but the part that does
+    moves with the estimated combinations. None when every held value is the prior's."""
+    moved = [
+        f"{n} {theta0[i]:.4g} -> {theta[i]:.4g} ({report.share[i]:.0%} of it observable)"
+        for i, n in enumerate(layout.names)
+        if not report.estimated[i] and not np.isclose(theta[i], theta0[i], rtol=1e-9, atol=0)
+    ]
+    if not moved:
+        return None
+    return (
+        "held coefficients that moved off the prior with the estimated combinations they "
+        f"share: {'; '.join(moved)}"
+    )
 
 
 #: Position-to-position spread of the gyro outputs, in window-noise units, below which Earth
@@ -549,10 +639,8 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
         theta_data = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
         fallback = {n: theta_data[sl] for n, sl in layout.term_slices().items()}
         theta0 = opt.prior.to_vector(layout, fallback)
-        prior_source = str(opt.prior.metadata.get("source", "given prior"))
     else:
         theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
-        prior_source = "data-derived (ellipsoid fit for scale and bias; misalignment zero)"
     # plugin terms may need site quantities or extra columns: bound to these positions here
     models = bind_context(models, positions, values_by_term(layout, theta0), opt.latitude_deg,
                           opt.height_m, with_slews=slews is not None)  # fmt: skip
@@ -572,16 +660,14 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     if from_slews and opt.prior is None:
         theta0 = slew_prior(problem, theta0)
         problem = build(theta0)
-        prior_source = (
-            "data-derived (accel: ellipsoid fit; gyro: common scale from the slews, bias the "
-            "mean window output; misalignment zero)"
-        )
     if slews is not None:
         notes.append(
             f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
             f"included; {np.median(slews.duration_s):.3g} s median)"
         )
     typical = layout.typical(theta0)
+    prior_source = describe_prior(positions, layout, theta0, opt.latitude_deg, opt.height_m,
+                                  opt.prior, gyro_from_slews=from_slews and opt.prior is None)  # fmt: skip
     return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical)
 
 
@@ -669,15 +755,33 @@ def calibrate(
             lm = solve_lm(problem, theta, T)
             theta, evaluations = lm.theta, evaluations + lm.evaluations
     info_min = INFO_MIN if report.noise_decided else 0.0
+    if opt.method == "lm" or opt.polish:
+        fixed = fixed_point(problem, theta, theta0, typical, info_min)
+        problem, theta, evaluations = fixed.problem, fixed.theta, evaluations + fixed.evaluations
+        convergence = fixed.convergence
+    else:
+        convergence = swarm_convergence(problem, theta, theta0, typical, info_min, opt.method)
+        evaluations += convergence.pop("evaluations", 0)
     report = analyze(problem, theta, typical, info_min=info_min)
     if opt.refuse_at_solution:
         report = _decided(report, "at the solution")
     T = typical[:, None] * report.basis
-    cov, chi2_red = covariance(problem, theta, T)
+    cov_measurement, chi2_red = covariance(problem, theta, T)
+    # the held directions are not exact: their prior uncertainty moves the estimated ones
+    cls = sensor_class(positions, problem.layout, theta0)
+    sigma0, sigma0_source = prior_sigma(
+        problem.layout, theta0, typical, opt.prior.uncertainty if opt.prior else None, cls
+    )
+    cov_held = consider_covariance(problem, theta, typical, report.basis, report.null, sigma0)
+    cov = cov_measurement + cov_held
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     status_flat = np.where(report.estimated, "estimated", "held")
-    sd = np.where(report.estimated, sd, np.nan)
     notes += _observability_notes(report, problem)
+    moved = held_moved(layout, theta0, theta, report)
+    if moved:
+        notes.append(moved)
+    if convergence and not convergence.get("converged"):
+        notes.append(f"not converged: {convergence.get('reason')}")
     if opt.paper and opt.method != "lm":
         notes.append(
             "paper mode: the swarm also searched the directions no norm can see "
@@ -708,11 +812,15 @@ def calibrate(
         source=positions.source,
         **_plugin_metadata(layout),
     )
+    coeffs.uncertainty = {n: sd[sl] for n, sl in slices.items()}
     return CalibrationResult(
         coefficients=coeffs,
         status={n: status_flat[sl] for n, sl in slices.items()},
         uncertainty={n: sd[sl] for n, sl in slices.items()},
         covariance=cov,
+        covariance_measurement=cov_measurement,
+        held_uncertainty=HeldUncertainty(cls, sigma0_source, sigma0),
+        convergence=convergence,
         observability=report,
         problem=problem,
         theta=theta,

@@ -55,6 +55,9 @@ class CoefficientSet:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     t0_c: float = 25.0
     metadata: dict[str, Any] = field(default_factory=dict)
+    #: 1-sigma per term, same shapes as ``values`` (NaN where unknown); read from a file's
+    #: ``"uncertainty"``: what the coefficients held at this prior add to a new fit's uncertainty
+    uncertainty: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
     def seed_truth(cls) -> CoefficientSet:
@@ -68,7 +71,10 @@ class CoefficientSet:
 
     def copy(self) -> CoefficientSet:
         return CoefficientSet(
-            {k: np.array(v, float) for k, v in self.values.items()}, self.t0_c, dict(self.metadata)
+            {k: np.array(v, float) for k, v in self.values.items()},
+            self.t0_c,
+            dict(self.metadata),
+            {k: np.array(v, float) for k, v in self.uncertainty.items()},
         )
 
     # ---- flat vectors ---------------------------------------------------------------------
@@ -99,6 +105,10 @@ class CoefficientSet:
         out = layout_like(self.values, lambda v: float(v), terms)
         out["t0_c"] = self.t0_c
         out["schema"] = SCHEMA
+        if self.uncertainty:
+            out["uncertainty"] = layout_like(
+                self.uncertainty, lambda v: float(v) if np.isfinite(v) else None, terms
+            )
         if self.metadata:
             out["metadata"] = _jsonable(self.metadata)
         return out
@@ -110,40 +120,65 @@ class CoefficientSet:
         """Parse the section 5 layout; unknown sensors or malformed entries are input errors."""
         if not isinstance(data, Mapping):
             raise RecalInputError(f"{source}: expected a JSON object with 'gyro' and/or 'accel'")
-        vals: dict[str, np.ndarray] = {}
-        for sensor in ("gyro", "accel"):
-            block = data.get(sensor)
-            if block is None:
-                continue
-            if not isinstance(block, Mapping):
-                raise RecalInputError(f"{source}: '{sensor}' must be an object")
-            for key, kind in _SEED_KEYS.items():
-                if key not in block:
-                    continue
-                name = f"{sensor}.{key}"
-                if kind == "dict":
-                    entry = block[key]
-                    if not isinstance(entry, Mapping) or set(entry) != set(MISALIGNMENT_NAMES):
-                        raise RecalInputError(
-                            f"{source}: {name} must have exactly {', '.join(MISALIGNMENT_NAMES)}"
-                        )
-                    vals[name] = _finite([entry[n] for n in MISALIGNMENT_NAMES], name, source)
-                else:
-                    vals[name] = _finite(block[key], name, source, size=3)
-        for name, entry in (data.get("effects") or {}).items():
-            term = (terms or {}).get(name)
-            if isinstance(entry, Mapping):
-                order = list(term.params) if term else list(entry)
-                missing = [p for p in order if p not in entry]
-                if missing:
-                    raise RecalInputError(f"{source}: effect {name} lacks {', '.join(missing)}")
-                vals[name] = _finite([entry[p] for p in order], name, source)
-            else:
-                vals[name] = _finite(entry, name, source)
+        vals = _parse_layout(data, terms, source, _finite)
         if not vals:
             raise RecalInputError(f"{source}: no coefficients found (expected 'gyro' or 'accel')")
+        sigma: dict[str, np.ndarray] = {}
+        if data.get("uncertainty") is not None:
+            if not isinstance(data["uncertainty"], Mapping):
+                raise RecalInputError(f"{source}: 'uncertainty' must be an object")
+            sigma = _parse_layout(data["uncertainty"], terms, f"{source} uncertainty", _sigma)
         meta = data.get("metadata") or {}
-        return cls(vals, float(data.get("t0_c", 25.0)), dict(meta))
+        return cls(vals, float(data.get("t0_c", 25.0)), dict(meta), sigma)
+
+
+def _parse_layout(
+    data: Mapping[str, Any],
+    terms: Mapping[str, Term] | None,
+    source: str,
+    number: Callable[..., np.ndarray],
+) -> dict[str, np.ndarray]:
+    """Per-term arrays from the section 5 layout, each leaf list read by ``number``."""
+    vals: dict[str, np.ndarray] = {}
+    for sensor in ("gyro", "accel"):
+        block = data.get(sensor)
+        if block is None:
+            continue
+        if not isinstance(block, Mapping):
+            raise RecalInputError(f"{source}: '{sensor}' must be an object")
+        for key, kind in _SEED_KEYS.items():
+            if key not in block:
+                continue
+            name = f"{sensor}.{key}"
+            if kind == "dict":
+                entry = block[key]
+                if not isinstance(entry, Mapping) or set(entry) != set(MISALIGNMENT_NAMES):
+                    raise RecalInputError(
+                        f"{source}: {name} must have exactly {', '.join(MISALIGNMENT_NAMES)}"
+                    )
+                vals[name] = number([entry[n] for n in MISALIGNMENT_NAMES], name, source)
+            else:
+                vals[name] = number(block[key], name, source, size=3)
+    for name, entry in (data.get("effects") or {}).items():
+        term = (terms or {}).get(name)
+        if isinstance(entry, Mapping):
+            order = list(term.params) if term else list(entry)
+            missing = [p for p in order if p not in entry]
+            if missing:
+                raise RecalInputError(f"{source}: effect {name} lacks {', '.join(missing)}")
+            vals[name] = number([entry[p] for p in order], name, source)
+        else:
+            vals[name] = number(entry, name, source)
+    return vals
+
+
+def _sigma(value: Any, name: str, source: str, size: int | None = None) -> np.ndarray:
+    """A 1-sigma leaf list: numbers >= 0, or null (unknown, NaN)."""
+    items = value if isinstance(value, list | tuple) else [value]
+    arr = _finite([np.nan if v is None else v for v in items], name, source, size, allow_nan=True)
+    if np.any(arr < 0):
+        raise RecalInputError(f"{source}: {name} must not be negative")
+    return arr
 
 
 def layout_like(
@@ -171,14 +206,16 @@ def layout_like(
     return out
 
 
-def _finite(value: Any, name: str, source: str, size: int | None = None) -> np.ndarray:
+def _finite(
+    value: Any, name: str, source: str, size: int | None = None, allow_nan: bool = False
+) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         raise RecalInputError(f"{source}: {name} must be numbers, got {value!r}") from None
     if size is not None and arr.size != size:
         raise RecalInputError(f"{source}: {name} must have {size} values, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
+    if np.any(np.isinf(arr)) or (not allow_nan and np.any(np.isnan(arr))):
         raise RecalInputError(f"{source}: {name} contains NaN or infinity")
     return arr
 

@@ -459,6 +459,21 @@ class Problem:
             self.slew_basis, self.slew_earth_rate, self.latitude_deg,
         )  # fmt: skip
 
+    def at(self, theta: np.ndarray) -> Problem:
+        """The problem re-referenced at ``theta`` (an estimate rather than the prior): the window
+        noise propagated through it and the slews' horizontal basis taken from it. Sigmas that
+        came from fit residuals are kept. A fit iterated with this is a fixed point: calibrating
+        again with its own output as the prior builds the same problem."""
+        prob = self
+        if self.slews is not None:
+            f = self._specific_force(theta)
+            prob = replace(prob, slew_basis=horizontal_basis(f[self.slews.second]))
+        sigma, source = prob.propagated_sigma(theta)
+        keep = {n for n in self.sigma_source if not self.noise_known_for(n)}
+        sigma = {n: (self.sigma[n] if n in keep else v) for n, v in sigma.items()}
+        source = {n: (self.sigma_source[n] if n in keep else v) for n, v in source.items()}
+        return prob.with_sigma(sigma, source)
+
     def with_sigma_from_residuals(self, theta: np.ndarray, n_params: int) -> Problem:
         """Replace every sigma not known from noise columns by the dof-corrected residual RMS."""
         raw = self.raw_residuals(theta[None])

@@ -703,7 +703,11 @@ class Scheduler:
     # -- internals ------------------------------------------------------------------------
     def _prior(self, previous: Any) -> CoefficientSet | None:
         if previous is not None:
-            cs = CoefficientSet.from_json_dict(previous.document["coefficients"])
+            doc = previous.document
+            # its uncertainty (inside "coefficients" since schema 1 files carry it; beside it
+            # in older records) is what the coefficients held at it add to the new fit's
+            block = {"uncertainty": doc.get("uncertainty"), **doc["coefficients"]}
+            cs = CoefficientSet.from_json_dict(block)
             cs.metadata["source"] = f"version {previous.version}"
             return cs
         if self._settings.prior_path:

@@ -25,6 +25,10 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
         out[f"coeffs{seed}"] = str(d / f"coeffs{seed}.json")
         (d / f"cal{seed}.json").write_text(json.dumps(result.to_json_dict()))
         (d / f"coeffs{seed}.json").write_text(json.dumps(result.coefficients.to_json_dict()))
+    bare = result.coefficients.to_json_dict()  # a hand-written file: no "uncertainty"
+    assert bare.pop("uncertainty")
+    out["bare"] = str(d / "bare.json")
+    (d / "bare.json").write_text(json.dumps(bare))
     return out
 
 
@@ -48,13 +52,13 @@ def test_prediction_of_a_change_is_the_linear_model(files, capsys) -> None:
 @pytest.mark.parametrize(
     "extra, message",
     [
-        ([], "has no uncertainties (a coefficients file): give --from OLD.json"),
+        ([], "has no uncertainties (no 'uncertainty' beside the coefficients): give --from"),
         (["--latitude", "95"], "--latitude 95.0 is outside [-90, 90] deg"),
         (["--hours", "0"], "--hours in (0, 720]"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(files, capsys, extra: list[str], message: str) -> None:
-    args = ["predict", files["coeffs1"], "--latitude", "52", *extra]
+    args = ["predict", files["bare"], "--latitude", "52", *extra]
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err

@@ -95,8 +95,9 @@ def run(args: argparse.Namespace) -> int:
     old = _load(args.old)[0] if args.old else None
     if sigma_doc is None and old is None:
         raise RecalInputError(
-            f"{args.new} has no uncertainties (a coefficients file): give --from OLD.json to "
-            "predict the change, or pass a `recal calibrate --json` output"
+            f"{args.new} has no uncertainties (no 'uncertainty' beside the coefficients): give "
+            "--from OLD.json to predict the change, or pass a file `recal calibrate -o` or "
+            "--json wrote"
         )
     new, filled = complete_seed_set(new, old)
     var = seed_sigma(sigma_doc) ** 2 if sigma_doc else np.zeros(SEED_PARAMETERS)

@@ -103,15 +103,22 @@ def test_the_gate_can_refuse_a_version_that_predicts_a_worse_error(
 def test_held_coefficients_keep_the_accepted_versions_uncertainty(
     accepted: CalibrationRecord,
 ) -> None:
-    # six faces: the accelerometer quadratic terms are held at the prior
+    # eight positions: the accelerometer quadratic terms are held at the prior
     positions = simulate_positions(TRUTH, design="random", n_positions=8, latitude_deg=LAT, seed=3)
-    result = calibrate(positions, CalibrationOptions(latitude_deg=LAT))
-    assert (result.status["accel.quadratic"] == "held").all()
-    alone = navigation_impact_of(result, None, SITE)
-    assert set(alone.exact) == {"accel.quadratic.K2x", "accel.quadratic.K2y", "accel.quadratic.K2z"}
-    with_prior = navigation_impact_of(result, accepted, SITE)
-    assert with_prior.exact == ()
-    assert with_prior.error_m_1sigma >= alone.error_m_1sigma
+    alone = calibrate(positions, CalibrationOptions(latitude_deg=LAT))
+    assert (alone.status["accel.quadratic"] == "held").all()
+    # without a prior file they carry the sensor class's default, not zero
+    assert alone.held_uncertainty is not None
+    assert alone.held_uncertainty.sensor_class == "navigation"
+    np.testing.assert_allclose(alone.uncertainty["accel.quadratic"], 5e-5, rtol=1e-9)
+    assert navigation_impact_of(alone, None, SITE).exact == ()
+    # held at the accepted version: its 1-sigma, carried into the fit's covariance
+    prior = CoefficientSet.from_json_dict(accepted.document["coefficients"])
+    kept = accepted.document["uncertainty"]["accel"]["quadratic"]
+    with_prior = calibrate(positions, CalibrationOptions(latitude_deg=LAT, prior=prior))
+    assert (with_prior.status["accel.quadratic"] == "held").all()
+    np.testing.assert_allclose(with_prior.uncertainty["accel.quadratic"], kept, rtol=1e-9)
+    assert navigation_impact_of(with_prior, accepted, SITE).exact == ()
 
 
 def test_an_older_record_without_an_impact_is_recomputed(

@@ -1,0 +1,142 @@
+"""A calibration that does not depend on where it started: iterate the fit to a fixed point.
+
+One Levenberg-Marquardt run minimises the whitened residuals of a problem whose noise was
+propagated through the *prior* and whose observable directions were judged at the prior. Both
+change with the estimate: calibrating again with the output as the prior builds another
+problem and lands elsewhere (imucal's Ferraris session: chi2_red 110, then 72, then 61). So
+:func:`fixed_point` repeats
+
+    problem at theta (noise and slew basis at the estimate) -> observability at theta ->
+    LM from theta on the observable directions (held directions stay at the prior)
+
+until a round moves the estimate by less than :data:`SETTLED_SIGMA` in Mahalanobis norm
+(measured by the change of the whitened residuals, ||r(new) - r(old)||, i.e. in units of the
+estimate's own 1-sigma), then restarts once from the prior on the settled problem: when the two
+answers agree the calibration is a fixed point and start-independent, else ``converged`` is false
+with the reason (a local minimum: the lower one is kept).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from recal.lm import covariance, solve_lm
+from recal.observability import analyze
+from recal.problem import Problem
+
+#: A round that moves the estimate by less than this (Mahalanobis norm, sigma) has settled.
+SETTLED_SIGMA = 0.05
+#: Rounds before giving up: each is one LM run, usually 1-3 are needed.
+MAX_ROUNDS = 8
+#: Two answers closer than this (Mahalanobis norm, sigma) are the same answer.
+SAME_ANSWER_SIGMA = 0.5
+
+
+class FixedPoint(NamedTuple):
+    problem: Problem
+    theta: np.ndarray
+    evaluations: int
+    convergence: dict[str, Any]  # {"converged", "reason", "rounds", ...} (calibrate's JSON)
+
+
+def _projected_start(theta: np.ndarray, theta0: np.ndarray, typical: np.ndarray, basis):
+    """theta with its displacement from the prior kept on the observable directions only."""
+    d = (theta - theta0) / typical
+    return theta0 + typical * (basis @ (basis.T @ d))
+
+
+def _distance(problem: Problem, a: np.ndarray, b: np.ndarray) -> float:
+    """Mahalanobis distance of two estimates, to first order: ||r(a) - r(b)|| (sigma)."""
+    r = problem.residuals(np.stack([a, b]))
+    return float(np.linalg.norm(r[0] - r[1]))
+
+
+def _cost(problem: Problem, theta: np.ndarray) -> float:
+    r = problem.residuals(theta[None])[0]
+    return float(0.5 * r @ r)
+
+
+def _settle(problem, theta, theta0, typical, info_min):
+    """LM rounds with the problem re-referenced at the estimate until a round moves < SETTLED."""
+    evaluations, rounds, moved = 0, 0, np.inf
+    while rounds < MAX_ROUNDS:
+        rounds += 1
+        if problem.noise_known:
+            problem = problem.at(theta)
+        report = analyze(problem, theta, typical, info_min=info_min)
+        if not report.basis.shape[1]:
+            break
+        start = _projected_start(theta, theta0, typical, report.basis)
+        lm = solve_lm(problem, start, typical[:, None] * report.basis)
+        evaluations += lm.evaluations
+        moved = _distance(problem, lm.theta, theta)
+        if _cost(problem, lm.theta) <= _cost(problem, theta) or not np.isfinite(moved):
+            theta = lm.theta
+        if moved < SETTLED_SIGMA:
+            break
+    return problem, theta, evaluations, rounds, moved
+
+
+def fixed_point(
+    problem: Problem,
+    theta: np.ndarray,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    info_min: float,
+) -> FixedPoint:
+    """Iterate the fit at ``theta`` to a fixed point and check it from the prior (module doc)."""
+    problem, theta, evaluations, rounds, moved = _settle(problem, theta, theta0, typical, info_min)
+    out: dict[str, Any] = {"rounds": rounds, "last_step_sigma": float(moved)}
+    if moved >= SETTLED_SIGMA:
+        out.update(converged=False, reason=(
+            f"the estimate still moved by {moved:.2g} sigma after {rounds} rounds of "
+            "re-referencing the noise at the estimate"))  # fmt: skip
+        return FixedPoint(problem, theta, evaluations, out)
+    # start-independence: from the prior on the settled problem
+    report = analyze(problem, theta, typical, info_min=info_min)
+    lm = solve_lm(problem, theta0, typical[:, None] * report.basis)
+    evaluations += lm.evaluations
+    gap = _distance(problem, lm.theta, theta)
+    out["restart_gap_sigma"] = float(gap)
+    if gap < SAME_ANSWER_SIGMA:
+        out.update(converged=True, reason=None)
+        return FixedPoint(problem, theta, evaluations, out)
+    c_settled, c_restart = _cost(problem, theta), _cost(problem, lm.theta)
+    if c_restart < c_settled:
+        # the restart found a lower minimum: settle it and report the disagreement
+        problem, theta, more, _, _ = _settle(problem, lm.theta, theta0, typical, info_min)
+        evaluations += more
+    _, chi2_a = covariance(problem, theta, typical[:, None] * report.basis)
+    out.update(converged=False, reason=(
+        f"local minima: LM from the prior and from the settled estimate end {gap:.2g} sigma "
+        f"apart (costs {min(c_settled, c_restart):.6g} and {max(c_settled, c_restart):.6g}); "
+        f"the lower one is kept (chi2_red {chi2_a:.3g}); add positions or slews, or give a "
+        "closer --prior"))  # fmt: skip
+    return FixedPoint(problem, theta, evaluations, out)
+
+
+def swarm_convergence(
+    problem: Problem,
+    theta: np.ndarray,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    info_min: float,
+    method: str,
+) -> dict[str, Any]:
+    """Did a swarm reach the minimum? LM from its answer tells (the answer itself is kept)."""
+    report = analyze(problem, theta, typical, info_min=info_min)
+    T = typical[:, None] * report.basis
+    if not T.shape[1]:
+        return {"converged": True, "reason": None, "evaluations": 0}
+    lm = solve_lm(problem, _projected_start(theta, theta0, typical, report.basis), T)
+    gap = _distance(problem, lm.theta, theta)
+    out: dict[str, Any] = {"evaluations": lm.evaluations, "lm_gap_sigma": float(gap)}
+    if gap < SAME_ANSWER_SIGMA:
+        out.update(converged=True, reason=None)
+    else:
+        out.update(converged=False, reason=(
+            f"the {method} answer is {gap:.2g} sigma from the minimum LM finds from it: the "
+            "swarm stopped short (use --polish or more --mc runs)"))  # fmt: skip
+    return out
