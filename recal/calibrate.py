@@ -362,7 +362,7 @@ def held_moved(
     held when less than half of it lies in the observable directions, but the part that does
     moves with the estimated combinations. None when every held value is the prior's."""
     moved = [
-        f"{n} {theta0[i]:.4g} -> {theta[i]:.4g} ({report.share[i]:.0%} of it observable)"
+        f"{n} {theta0[i]:.4g} -> {theta[i]:.4g} ({100 * report.share[i]:.2g} % of it observable)"
         for i, n in enumerate(layout.names)
         if not report.estimated[i] and not np.isclose(theta[i], theta0[i], rtol=1e-9, atol=0)
     ]

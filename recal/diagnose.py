@@ -194,11 +194,17 @@ class Diagnosis:
     #: variable -> correlation with the final whitened residual (|r| largest first)
     residual_correlations: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: largest misfit with the suggested effects (:func:`worst_windows`), 0-based rows
+    worst_positions: list[int] = field(default_factory=list)
+    worst_slews: list[dict[str, int]] = field(default_factory=list)
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
             "verdict": self.verdict,
             "model_fails": self.model_fails,
+            "worst_positions": self.worst_positions,
+            "worst_slews": self.worst_slews,
+            "indexing": INDEXING,
             "ladder": self.ladder,
             "residual_correlations": self.residual_correlations,
             "notes": self.notes,
@@ -289,7 +295,11 @@ def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
         known = fit.problem.noise_known_for(n)
         floor = float(np.sqrt(np.mean(fit.problem.sigma[n] ** 2))) if known else None
         rms = float(np.sqrt(np.mean(r**2)))
-        worst = np.argsort(-np.abs(r / fit.problem.sigma[n]))[:3]
+        w = r / fit.problem.sigma[n]
+        # a slew has two residuals and a known rotation three: rank the slews / rotations, 0-based
+        size = {"slew": 2, "rotation": 3}.get(n, 1)
+        score = np.sum(w.reshape(-1, size) ** 2, axis=1)
+        key = {"slew": "worst_slews", "rotation": "worst_rotations"}.get(n, "worst_positions")
         rows.append(
             {
                 "name": n,
@@ -297,11 +307,39 @@ def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
                 "noise_floor": floor,
                 "ratio": rms / floor if floor else None,
                 "unit": UNITS[n],
-                "worst_positions": [int(i) for i in worst],
+                key: [int(i) for i in np.argsort(-score, kind="stable")[:3]],
                 "per_position": [float(v) for v in r],
             }
         )
     return rows
+
+
+#: How diagnose numbers positions and slews in its text and JSON.
+INDEXING = "0-based rows of the positions file (slews: 0-based, slew k joins its two windows)"
+
+
+def worst_windows(fit: Fit, k: int = 3) -> tuple[list[int], list[dict[str, int]]]:
+    """The ``k`` positions (0-based rows) with the largest whitened misfit summed over the
+    per-position invariants, and the ``k`` slews with the largest misfit ({"slew", "from_row",
+    "to_row"}), largest first and each named once."""
+    p = fit.problem
+    w = fit.residual()
+    per_pos = np.zeros(p.M)
+    per_slew = np.zeros(len(p.slews) if p.slews is not None else 0)
+    start = 0
+    for n in p.invariant_names:
+        rows = w[start : start + p.n_of(n)]
+        start += p.n_of(n)
+        if n == "slew":
+            per_slew += np.sum(rows.reshape(-1, 2) ** 2, axis=1)
+        elif n != "rotation":
+            per_pos += rows**2
+    positions = [int(i) for i in np.argsort(-per_pos, kind="stable")[:k]]
+    slews = [
+        {"slew": int(i), "from_row": int(p.slews.first[i]), "to_row": int(p.slews.second[i])}
+        for i in np.argsort(-per_slew, kind="stable")[:k]
+    ]
+    return positions, slews
 
 
 def default_candidates(positions: Positions, sensors: Sequence[str], t0_c: float) -> list[Term]:
@@ -441,6 +479,7 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
     """The verdict: fits to the floor, or the model still fails (and where, and with what)."""
     dof = max(n - final.rank, 1)
     d.residual_correlations = _residual_correlations(final, d.baseline)
+    d.worst_positions, d.worst_slews = worst_windows(final)
     added = ", ".join(d.suggested_effects)
     if not final.problem.noise_known:
         d.verdict = (
@@ -466,15 +505,17 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
             else f"the model fits to the noise floor (chi2_red {d.chi2_red:.3g}); no effect missing"
         ) + caveat
         return
-    worst = np.argsort(-np.abs(final.residual()))[:3]
-    m = final.problem.M
-    per = ", ".join(str(int(i) % m) for i in worst)
+    per = ", ".join(map(str, d.worst_positions))
+    if d.worst_slews:
+        per += "; worst slews " + ", ".join(
+            f"{s['slew']} (rows {s['from_row']}->{s['to_row']})" for s in d.worst_slews
+        )
     corr = ", ".join(f"{k} (r = {v:+.2f})" for k, v in list(d.residual_correlations.items())[:3])
     model = f"with {added}" if added else "with the seed model"
     d.verdict = (
         f"the model still fails: chi2_red {d.final_chi2_red:.3g} {model} (p = {p_fit:.2g} "
         "against the noise floor) and no candidate explains the rest; worst positions "
-        f"{per}"
+        f"(0-based rows) {per}"
         + (f"; the residual correlates with {corr}" if corr else "")
         + "; an effect outside the catalogue may be missing: write it as a --plugin"
     )

@@ -111,6 +111,15 @@ def _driver_chart(c: Candidate, invariants: list[dict], problem) -> str:
     return figure_svg(fig)
 
 
+def _worst_cell(inv: dict) -> str:
+    """The worst positions of an invariant (0-based rows), or its worst slews / rotations."""
+    for key, label in (("worst_positions", ""), ("worst_slews", "slews "),
+                       ("worst_rotations", "rotations ")):  # fmt: skip
+        if key in inv:
+            return label + ", ".join(map(str, inv[key]))
+    return ""
+
+
 def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
     """A self-contained HTML page: invariants vs noise, candidate ranking, residual plots."""
     doc = d.to_json_dict()
@@ -123,7 +132,7 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         rows.append(
             f"<tr><td>{esc(inv['name'])}</td><td>{inv['rms']:.4g}</td>"
             f"<td>{floor_txt}</td><td>{ratio_txt}</td>"
-            f"<td>{esc(inv['unit'])}</td><td>{inv['worst_positions']}</td></tr>"
+            f"<td>{esc(inv['unit'])}</td><td>{_worst_cell(inv)}</td></tr>"
         )
     cands = []
     for c in doc["candidates"]:
@@ -195,7 +204,7 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
 {_parameters_html(d)}
 <h2>Invariants against their noise floor</h2>
 <table><tr><th>invariant</th><th>RMS</th><th>noise floor</th><th>ratio</th><th>unit</th>
-<th>worst positions</th></tr>{"".join(rows)}</table>
+<th>worst positions (0-based rows)</th></tr>{"".join(rows)}</table>
 <h2>Candidate effects (best first)</h2>
 <p>delta BIC &lt; 0 means the effect earns its parameters; significant: family-wise p
 (parametric bootstrap over all candidates, with the real correlation of the residuals) &lt;

@@ -84,7 +84,9 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
+def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOptions:
+    """The options of the command line; ``positions`` (loaded when None and a slews side file
+    exists) are what the side file is checked against."""
     from recal.calibrate import CalibrationOptions
     from recal.errors import RecalInputError
     from recal.swarm import SwarmConfig
@@ -111,7 +113,7 @@ def options_from_args(args: argparse.Namespace) -> CalibrationOptions:
         cfg_cls = solver_for(args.method)[1] if args.method != "lm" else SwarmConfig
         extra = {"cf_mode": "literal"} if args.paper and args.method == "nafsa" else {}
         swarm = cfg_cls(fish=args.fish, iterations=args.iterations, **extra)
-    slews = load_slews(args)
+    slews = load_slews(args, positions)
     return CalibrationOptions(
         slews=slews,
         known_rotations=load_known_rotations(args, slews),
@@ -146,12 +148,16 @@ def _check_prior_plugins(prior, terms: dict, path: str) -> None:
         )
 
 
-def load_slews(args: argparse.Namespace):
-    """The slews side file of the positions (recal.slews.Slews), or None (--no-slews, absent)."""
+def load_slews(args: argparse.Namespace, positions=None):
+    """The slews side file of the positions (recal.slews.Slews), or None (--no-slews, absent,
+    or written for another positions file: ignored with one line on stderr saying why, an
+    error with an explicit --slews). Nothing is announced as used here: whether the fit uses
+    them is known only after it (:func:`announce_slews`)."""
     from pathlib import Path
 
     from recal.errors import RecalInputError
     from recal.slews import Slews
+    from service.cli.common import load_positions
     from service.cli.positions import slews_path
 
     use = getattr(args, "slews", None)  # diagnose: when the side file exists
@@ -167,8 +173,53 @@ def load_slews(args: argparse.Namespace):
     except OSError as exc:
         raise RecalInputError(f"cannot read {path}: {exc.strerror or exc}") from None
     slews = Slews.from_npz_bytes(data, str(path))
-    print(f"recal: using {len(slews)} slews from {path}", file=sys.stderr)
-    return slews
+    why = side_file_mismatch(slews, positions if positions is not None else load_positions(
+        args.positions))  # fmt: skip
+    if why is None:
+        return slews
+    origin = f"it was written for another positions file than {args.positions}: {why}"
+    if use:
+        raise RecalInputError(f"--slews: {path}: {origin}; run `recal positions` to rebuild it")
+    print(f"recal: ignoring {path}: {origin}; calibrating without slews (`recal positions` "
+          "rebuilds the file; --no-slews skips it)", file=sys.stderr)  # fmt: skip
+    return None
+
+
+def side_file_mismatch(slews, positions) -> str | None:
+    """Why a slews side file does not belong to these positions (window count or times, with
+    the first window that differs), or None when it does."""
+    import numpy as np
+
+    cols = positions.columns
+    if "start_s" not in cols or "end_s" not in cols:
+        return "the positions file has no start_s/end_s columns to match its windows"
+    why = slews.mismatch(cols["start_s"], cols["end_s"])
+    if why is None or not why.startswith("the window times"):
+        return why
+    start, end = cols["start_s"][slews.first], cols["end_s"][slews.first]
+    off = np.abs(start - slews.window_start_s[:, 0]) + np.abs(end - slews.window_end_s[:, 0])
+    k = int(np.argmax(off > 0.5 * slews.period_s))
+    row = int(slews.first[k])
+    return (
+        f"window {row} (0-based row) spans {start[k]:.6g}-{end[k]:.6g} s in the positions "
+        f"file, {slews.window_start_s[k, 0]:.6g}-{slews.window_end_s[k, 0]:.6g} s in the "
+        f"slews file ({len(positions)} windows here, {len(slews)} slews there)"
+    )
+
+
+def announce_slews(args: argparse.Namespace, slews, used: bool, notes: list[str]) -> None:
+    """One line on stderr after the fit: the side file's slews were used, or why not (the
+    engine's note), so the command never says 'using' and then 'not used'."""
+    from service.cli.positions import slews_path
+
+    if slews is None:
+        return
+    path = slews_path(args.positions)
+    if used:
+        print(f"recal: used {len(slews)} slews from {path}", file=sys.stderr)
+        return
+    why = next((n for n in notes if n.startswith("slews not used")), "slews not used")
+    print(f"recal: {path}: {why}", file=sys.stderr)
 
 
 def load_known_rotations(args: argparse.Namespace, slews):
@@ -228,15 +279,18 @@ def run_calibration(args: argparse.Namespace) -> CalibrationResult:
     from recal.calibrate import calibrate
     from service.cli.common import load_positions, progress_bar
 
-    options = options_from_args(args)
     positions = load_positions(args.positions)
+    options = options_from_args(args, positions)
     if options.method == "lm":
-        return calibrate(positions, options)
-    bar = progress_bar(options.mc_runs, f"MCS-{options.method.upper()}")
-    try:
-        return calibrate(positions, options, progress=bar.update)
-    finally:
-        bar.close()
+        result = calibrate(positions, options)
+    else:
+        bar = progress_bar(options.mc_runs, f"MCS-{options.method.upper()}")
+        try:
+            result = calibrate(positions, options, progress=bar.update)
+        finally:
+            bar.close()
+    announce_slews(args, options.slews, result.problem.slews is not None, result.notes)
+    return result
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from service.cli.calibrate import add_calibration_arguments, options_from_args
+from service.cli.calibrate import add_calibration_arguments, announce_slews, options_from_args
 from service.cli.common import atomic_write, load_positions, parse_effects, print_json
 
 if TYPE_CHECKING:
@@ -36,10 +36,12 @@ def run(args: argparse.Namespace) -> int:
     from recal.diagnose import diagnose
     from recal.report import diagnosis_html
 
-    options = options_from_args(args)
     positions = load_positions(args.positions)
+    options = options_from_args(args, positions)
     candidates = parse_effects(args.candidates) if args.candidates else None
     result = diagnose(positions, options, candidates)
+    base = result.baseline
+    announce_slews(args, options.slews, base.problem.slews is not None, base.notes)
     if args.report:
         atomic_write(args.report, diagnosis_html(result, f"recal diagnose {args.positions}"))
         print(f"recal diagnose: wrote the report to {args.report}", file=sys.stderr)

@@ -1,0 +1,137 @@
+"""Commands say one consistent thing (issue 18 item 7): a slews side file is checked against
+its positions before it is announced, the prior's description is true to the values held, and
+diagnose names the same positions in its verdict and its JSON."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from recal.calibrate import CalibrationOptions, calibrate
+from recal.coefficients import CoefficientSet
+from recal.diagnose import diagnose
+from recal.session import simulate_session
+from recal.simulate import NoiseSpec, simulate_positions
+from service.cli.diagnose import format_diagnosis
+from service.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def with_slews(tmp_path_factory):
+    """pos.csv and its pos.slews.npz from one recording (`recal positions`)."""
+    d = tmp_path_factory.mktemp("slews")
+    s = simulate_session(CoefficientSet.seed_truth(), "24", latitude_deg=40.0, seed=4,
+                         rate_hz=100.0, window_s=6.0, slew_s=3.0, first_hold_s=12.0,
+                         noise=NoiseSpec(arw_deg_rt_h=0.0005, vrw_ug_rt_hz=20.0))  # fmt: skip
+    log = d / "log.csv"
+    rows = np.column_stack([s.time_s, s.gyro_out, s.accel_out])
+    np.savetxt(log, rows, delimiter=",", header="time_s,gyro_x,gyro_y,gyro_z,accel_x,accel_y,"
+               "accel_z", comments="", fmt="%.17g")  # fmt: skip
+    assert main(["positions", str(log), "--format", "csv", "-o", str(d / "pos.csv")]) == 0
+    return d
+
+
+def test_stale_side_file_is_ignored_with_the_reason_and_never_announced(with_slews, capsys):
+    d = with_slews
+    capsys.readouterr()
+    stale = d / "stale.csv"
+    (d / "stale.slews.npz").write_bytes((d / "pos.slews.npz").read_bytes())
+    # a new pos.csv from another source beside the old side file
+    assert main(["simulate", "--latitude", "40", "-o", str(stale)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(stale), "--latitude", "40", "--json"]) == 0
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert "ignoring" in out.err and "written for another positions file" in out.err
+    assert "window 0 (0-based row) spans 0-100 s in the positions file" in out.err
+    assert "used" not in out.err and "using" not in out.err
+    assert "slew" not in doc["residuals"]
+    assert not any("slew" in n for n in doc["notes"])  # nothing contradicts the stderr line
+    # asked for explicitly, a side file of another recording is bad input: one line, exit 2
+    assert main(["calibrate", str(stale), "--latitude", "40", "--slews"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "written for another positions file" in err[0]
+    assert main(["diagnose", str(stale), "--latitude", "40", "--json"]) == 0
+    assert "ignoring" in capsys.readouterr().err
+
+
+def test_side_file_is_announced_only_when_the_fit_uses_it(with_slews, capsys):
+    pos = str(with_slews / "pos.csv")
+    capsys.readouterr()
+    assert main(["calibrate", pos, "--latitude", "40", "--json"]) == 0
+    out = capsys.readouterr()
+    n = json.loads(out.out)["residuals"]["slew"]["slews"]
+    assert f"recal: used {n} slews from" in out.err and "not used" not in out.err
+    # one triad: the engine drops the slews, and stderr says so instead of "using"
+    assert main(["calibrate", pos, "--latitude", "40", "--sensor", "accel", "--json"]) == 0
+    out = capsys.readouterr()
+    assert "slews not used: they need both triads" in out.err and "used " not in out.err.replace(
+        "not used", ""
+    )
+    assert any(n.startswith("slews not used") for n in json.loads(out.out)["notes"])
+
+
+def _prior_claims_zero(prior: str) -> set[str]:
+    """Terms the prior description says start at zero."""
+    m = re.search(r"([\w., ]+) zero\)", prior)
+    return {t.strip() for t in m.group(1).split(",")} if m else set()
+
+
+@pytest.mark.parametrize("sensors", [("accel",), ("gyro",)])
+def test_prior_description_matches_the_held_values(sensors):
+    """8 random positions: misalignment is held (less than half of each coefficient is seen),
+    yet the part that is seen moves it off the prior's zero; the notes name each such value."""
+    pos = simulate_positions(CoefficientSet.seed_truth(), "random", 8, 45.0, seed=0,
+                             sensors=sensors)  # fmt: skip
+    r = calibrate(pos, CalibrationOptions(latitude_deg=45.0))
+    doc = r.to_json_dict()
+    zero = _prior_claims_zero(doc["prior"])
+    assert f"{sensors[0]}.misalignment" in zero, doc["prior"]
+    moved_note = " ".join(n for n in doc["notes"] if "moved off the prior" in n)
+    held = [(name, r.theta[i], r.theta_prior[i]) for i, name in enumerate(r.layout.names)
+            if not r.observability.estimated[i]]  # fmt: skip
+    assert held
+    moved = 0
+    for name, value, prior in held:
+        term = name.rsplit(".", 1)[0]
+        if term in zero:
+            assert prior == 0.0
+        if value != prior:  # every held value off its prior is named, with both values
+            moved += 1
+            assert f"{name} {prior:.4g} -> {value:.4g}" in moved_note, (name, moved_note)
+        else:
+            assert name not in moved_note
+    assert moved >= 2  # the case the note is for
+
+
+def test_prior_description_says_when_there_is_no_ellipsoid_fit():
+    """Six positions are too few for the ellipsoid fit: the scale is the median norm's."""
+    pos = simulate_positions(CoefficientSet.seed_truth(), "random", 6, 45.0, seed=1,
+                             sensors=("accel",))  # fmt: skip
+    prior = calibrate(pos, CalibrationOptions(latitude_deg=45.0)).prior_source
+    assert "accel: common scale from the median norm, bias zero" in prior
+    assert "ellipsoid fit" in prior and "scale and bias from an ellipsoid fit" not in prior
+
+
+def test_diagnose_verdict_and_json_name_the_same_worst_positions():
+    truth = CoefficientSet.seed_truth()
+    truth.values["gyro.bias_drift"] = np.array([0.05, 0.0, -0.03])
+    from recal.terms import catalogue_terms
+
+    pos = simulate_positions(truth, "random", 24, 45.0, seed=2,
+                             hidden=[catalogue_terms()["gyro.bias_drift"]])  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=45.0), candidates=["accel.scale_asymmetry"])
+    assert d.model_fails
+    doc = d.to_json_dict()
+    m = re.search(r"worst positions \(0-based rows\) ([\d, ]+)", format_diagnosis(d))
+    assert m, d.verdict
+    named = [int(v) for v in m.group(1).split(",")]
+    assert named == doc["worst_positions"] and len(set(named)) == len(named) == 3
+    assert "0-based rows" in doc["indexing"]
+    # the positions named carry the largest misfit of the final model, all invariants together
+    w = {k: v / d.baseline.problem.sigma[k] for k, v in d.final_residuals.items()}
+    score = sum(v**2 for v in w.values())
+    assert set(named) == set(np.argsort(-score)[:3].tolist())
