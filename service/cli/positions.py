@@ -40,6 +40,35 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "pass over it; they can also be given, or learned from a still period at the start "
         "(--init-still). The input is streamed: memory does not grow with its length.",
     )
+    add_input_options(p)
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="POSITIONS.csv",
+        help="the positions file to write (conventions section 4): one row per static window",
+    )
+    p.add_argument(
+        "--report",
+        metavar="OUT.html",
+        help="write an HTML report: moving variance and signals against time, thresholds, the "
+        "windows found and the stretches rejected (written even when no window is found)",
+    )
+    p.add_argument(
+        "--no-slews",
+        dest="slews",
+        action="store_false",
+        help="do not keep the slews (the gyro samples between windows) in POSITIONS.slews.npz",
+    )
+    add_kvh_unit_options(p)
+    add_detector_options(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def add_input_options(p: argparse.ArgumentParser) -> None:
+    """INPUT..., --format, --rate and --columns: how a recording is read (positions and noise
+    share them; :func:`service.cli.recording.open_recording` takes the parsed values)."""
     p.add_argument(
         "inputs",
         nargs="+",
@@ -65,26 +94,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="csv: the file's own column names for the standard ones, e.g. "
         "accel_x=acc_x,accel_y=acc_y,accel_z=acc_z,time_s=t",
     )
-    p.add_argument(
-        "-o",
-        "--output",
-        required=True,
-        metavar="POSITIONS.csv",
-        help="the positions file to write (conventions section 4): one row per static window",
-    )
-    p.add_argument(
-        "--report",
-        metavar="OUT.html",
-        help="write an HTML report: moving variance and signals against time, thresholds, the "
-        "windows found and the stretches rejected (written even when no window is found)",
-    )
-    p.add_argument(
-        "--no-slews",
-        dest="slews",
-        action="store_false",
-        help="do not keep the slews (the gyro samples between windows) in POSITIONS.slews.npz",
-    )
-    add_kvh_unit_options(p)
+
+
+def add_detector_options(p: argparse.ArgumentParser) -> None:
+    """The static detector's settings (positions and noise share them; see :func:`_config`)."""
     d = p.add_argument_group("detector")
     d.add_argument(
         "--init-still",
@@ -143,9 +156,6 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="reject windows whose mean gyro differs from the still-period mean (or zero) by "
         "more than RATE, gyro units: catches steady turns about the vertical",
     )
-    p.set_defaults(func=run)
-    return p
-
 
 def run(args: argparse.Namespace) -> int:
     from recal.errors import RecalInputError
