@@ -157,6 +157,7 @@ def add_detector_options(p: argparse.ArgumentParser) -> None:
         "more than RATE, gyro units: catches steady turns about the vertical",
     )
 
+
 def run(args: argparse.Namespace) -> int:
     from recal.errors import RecalInputError
     from service.cli.recording import open_recording
