@@ -232,8 +232,39 @@ def main() -> None:
     )
     slew = ours.to_json_dict()["residuals"]["slew"]
     print(f"\nThis project's slew residual: RMS {slew['rms_after']:.2e} rad against a noise floor of "
-          f"{slew['noise_floor']:.2e} rad (chi2_red {slew.get('chi2_red', float('nan')):.1f}); imu_tk "
-          "reports no uncertainty and no residual-to-noise ratio.")  # fmt: skip
+          f"{slew['noise_floor']:.2e} rad ({slew['rms_after'] / slew['noise_floor']:.1f}x; slew "
+          f"chi2_red {slew.get('chi2_red', float('nan')):.1f}); imu_tk reports no uncertainty "
+          "and no residual-to-noise ratio.")  # fmt: skip
+    own_fits(pos, slews, ours.chi2_red, rel_sd)
+
+
+def own_fits(pos: Positions, slews: Slews, chi2_both: float, gyro_scale_rel_sd: np.ndarray) -> None:
+    """The README's other figures on this recording: chi2_red of the accelerometer fit with the
+    window-mean noise taken as std/sqrt(n) and as the *_sem columns, of the default fit (both
+    triads and the slews), and why the gyro alone is not calibrated from Earth rate."""
+    from recal.errors import RecalInputError
+    from recal.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS
+
+    sem = set(ACCEL_SEM_COLUMNS + GYRO_SEM_COLUMNS)
+    plain = Positions.from_columns({k: v for k, v in pos.columns.items() if k not in sem})
+    opts = {"latitude_deg": 57.834}
+    rows = [
+        ("accelerometer alone, window noise std/sqrt(n)",
+         calibrate(plain, CalibrationOptions(sensor="accel", **opts)).chi2_red),
+        ("accelerometer alone, the `*_sem` columns",
+         calibrate(pos, CalibrationOptions(sensor="accel", **opts)).chi2_red),
+        ("both triads and the slews (the default)", chi2_both),
+    ]  # fmt: skip
+    print("\n| this project's fit of the recording (--latitude 57.834) | chi2_red |\n|---|---|")
+    for label, chi2 in rows:
+        print(f"| {label} | {chi2:.1f} |")
+    pct = 100 * gyro_scale_rel_sd
+    print(f"\nGyro scale 1-sigma with the slews: {pct.min():.2f}-{pct.max():.2f} %.")
+    try:
+        calibrate(pos, CalibrationOptions(sensor="gyro", **opts))
+        print("The gyro alone, without slews: calibrated from Earth rate.")
+    except RecalInputError as exc:
+        print(f"The gyro alone, without slews: refused: {exc}")
 
 
 if __name__ == "__main__":
