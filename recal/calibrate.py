@@ -756,7 +756,7 @@ def calibrate(
             theta, evaluations = lm.theta, evaluations + lm.evaluations
     info_min = INFO_MIN if report.noise_decided else 0.0
     if opt.method == "lm" or opt.polish:
-        fixed = fixed_point(problem, theta, theta0, typical, info_min)
+        fixed = fixed_point(problem, theta, theta0, typical, report.basis)
         problem, theta, evaluations = fixed.problem, fixed.theta, evaluations + fixed.evaluations
         convergence = fixed.convergence
     else:

@@ -33,9 +33,8 @@ from recal.problem import Problem
 
 #: 1-sigma of a coefficient held at a prior that carries no uncertainty of its own, per sensor
 #: class, in the coefficient's own unit ("rel" for scale factors: a fraction of the value).
-#: "navigation": a factory-calibrated navigation-grade triad (FOG/RLG gyro, whose Earth rate is
-#: visible) -- what is held is what changed since its last calibration, its residual
-#: misalignment about 0.1 mrad. "mems": a consumer/industrial MEMS triad -- datasheet
+#: "navigation": a navigation-grade triad (FOG/RLG gyro, whose Earth rate is visible): axes
+#: mounted to about 1 mrad (seed 000 Table 2), scale within 1e-3. "mems": a consumer/industrial MEMS triad -- datasheet
 #: cross-axis sensitivity of 1-2 %, nonlinearity of a few 1e-3 of full scale.
 #: A prior from a file without "uncertainty" uses the term's typical change instead (what ages
 #: between two calibrations, recal.terms).
@@ -44,7 +43,7 @@ DEFAULT_PRIOR_SIGMA: dict[str, dict[str, float]] = {
         "scale": 1e-3,  # rel
         "gyro.bias": 0.05,  # deg/h
         "accel.bias": 1e-3,  # g
-        "misalignment": 2e-4,  # rad
+        "misalignment": 1e-3,  # rad (seed 000 Table 2: up to 0.99 mrad)
         "quadratic": 5e-5,  # 1/g
     },
     "mems": {

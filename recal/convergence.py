@@ -6,14 +6,15 @@ change with the estimate: calibrating again with the output as the prior builds 
 problem and lands elsewhere (imucal's Ferraris session: chi2_red 110, then 72, then 61). So
 :func:`fixed_point` repeats
 
-    problem at theta (noise and slew basis at the estimate) -> observability at theta ->
-    LM from theta on the observable directions (held directions stay at the prior)
+    problem at theta (noise and slew basis at the estimate) -> LM from theta on the same
+    observable directions (held directions stay at the prior)
 
-until a round moves the estimate by less than :data:`SETTLED_SIGMA` in Mahalanobis norm
-(measured by the change of the whitened residuals, ||r(new) - r(old)||, i.e. in units of the
-estimate's own 1-sigma), then restarts once from the prior on the settled problem: when the two
-answers agree the calibration is a fixed point and start-independent, else ``converged`` is false
-with the reason (a local minimum: the lower one is kept).
+for :data:`REREFERENCE` rounds, then LM on the problem kept fixed, until a round moves the
+estimate by less than :data:`SETTLED_SIGMA` in Mahalanobis norm (the change of the whitened
+residuals, ||r(new) - r(old)||, over sqrt(max(1, chi2_red)): in units of the reported 1-sigma).
+It then restarts once from the prior on the settled problem: when the two answers agree the
+calibration is start-independent, else ``converged`` is false with the reason (a local
+minimum: the lower one is kept).
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ from recal.problem import Problem
 SETTLED_SIGMA = 0.05
 #: Rounds before giving up: each is one LM run, usually 1-3 are needed.
 MAX_ROUNDS = 8
+#: Rounds that re-reference the noise at the estimate before the problem is kept fixed.
+REREFERENCE = 2
 #: Two answers closer than this (Mahalanobis norm, sigma) are the same answer.
 SAME_ANSWER_SIGMA = 0.5
 
@@ -58,25 +61,32 @@ def _cost(problem: Problem, theta: np.ndarray) -> float:
     return float(0.5 * r @ r)
 
 
-def _settle(problem, theta, theta0, typical, info_min):
-    """LM rounds with the problem re-referenced at the estimate until a round moves < SETTLED."""
+def _settle(problem, theta, theta0, typical, basis, rereference: int = REREFERENCE):
+    """LM rounds until a round moves the estimate by < SETTLED_SIGMA; the first ``rereference``
+    rounds re-reference the noise at the estimate, later ones keep the problem fixed.
+
+    The observable directions stay those of the first solve (``basis``): judged again at every
+    estimate they can flip between rounds, and a flipped direction would lose its estimate.
+    Re-referencing is bounded because on a misfit recording (slews with unmodelled motion) the
+    propagated noise follows the estimate and the rounds need not settle."""
     evaluations, rounds, moved = 0, 0, np.inf
-    while rounds < MAX_ROUNDS:
-        rounds += 1
-        if problem.noise_known:
+    T = typical[:, None] * basis
+    while rounds < MAX_ROUNDS and T.shape[1]:
+        if problem.noise_known and rounds < rereference:
             problem = problem.at(theta)
-        report = analyze(problem, theta, typical, info_min=info_min)
-        if not report.basis.shape[1]:
-            break
-        start = _projected_start(theta, theta0, typical, report.basis)
-        lm = solve_lm(problem, start, typical[:, None] * report.basis)
+        rounds += 1
+        lm = solve_lm(problem, theta, T)
         evaluations += lm.evaluations
-        moved = _distance(problem, lm.theta, theta)
-        if _cost(problem, lm.theta) <= _cost(problem, theta) or not np.isfinite(moved):
-            theta = lm.theta
-        if moved < SETTLED_SIGMA:
+        moved = _distance(problem, lm.theta, theta) / np.sqrt(max(1.0, _chi2(problem, lm.theta, T)))
+        theta = lm.theta
+        if moved < SETTLED_SIGMA and rounds > min(rereference, 1):
             break
     return problem, theta, evaluations, rounds, moved
+
+
+def _chi2(problem: Problem, theta: np.ndarray, T: np.ndarray) -> float:
+    dof = problem.n_residuals - T.shape[1]
+    return 2.0 * _cost(problem, theta) / dof if dof > 0 else 1.0
 
 
 def fixed_point(
@@ -84,21 +94,23 @@ def fixed_point(
     theta: np.ndarray,
     theta0: np.ndarray,
     typical: np.ndarray,
-    info_min: float,
+    basis: np.ndarray,
 ) -> FixedPoint:
-    """Iterate the fit at ``theta`` to a fixed point and check it from the prior (module doc)."""
-    problem, theta, evaluations, rounds, moved = _settle(problem, theta, theta0, typical, info_min)
+    """Iterate the fit at ``theta`` to a fixed point and check it from the prior (module doc).
+
+    ``basis`` (D, k): the observable directions the fit solved for (typical-scaled)."""
+    problem, theta, evaluations, rounds, moved = _settle(problem, theta, theta0, typical, basis)
     out: dict[str, Any] = {"rounds": rounds, "last_step_sigma": float(moved)}
-    if moved >= SETTLED_SIGMA:
+    if rounds and moved >= SETTLED_SIGMA:
         out.update(converged=False, reason=(
             f"the estimate still moved by {moved:.2g} sigma after {rounds} rounds of "
             "re-referencing the noise at the estimate"))  # fmt: skip
         return FixedPoint(problem, theta, evaluations, out)
     # start-independence: from the prior on the settled problem
-    report = analyze(problem, theta, typical, info_min=info_min)
-    lm = solve_lm(problem, theta0, typical[:, None] * report.basis)
+    T = typical[:, None] * basis
+    lm = solve_lm(problem, theta0, T)
     evaluations += lm.evaluations
-    gap = _distance(problem, lm.theta, theta)
+    gap = _distance(problem, lm.theta, theta) / np.sqrt(max(1.0, _chi2(problem, theta, T)))
     out["restart_gap_sigma"] = float(gap)
     if gap < SAME_ANSWER_SIGMA:
         out.update(converged=True, reason=None)
@@ -106,13 +118,13 @@ def fixed_point(
     c_settled, c_restart = _cost(problem, theta), _cost(problem, lm.theta)
     if c_restart < c_settled:
         # the restart found a lower minimum: settle it and report the disagreement
-        problem, theta, more, _, _ = _settle(problem, lm.theta, theta0, typical, info_min)
+        problem, theta, more, _, _ = _settle(problem, lm.theta, theta0, typical, basis, 0)
         evaluations += more
-    _, chi2_a = covariance(problem, theta, typical[:, None] * report.basis)
+    _, chi2 = covariance(problem, theta, T)
     out.update(converged=False, reason=(
         f"local minima: LM from the prior and from the settled estimate end {gap:.2g} sigma "
         f"apart (costs {min(c_settled, c_restart):.6g} and {max(c_settled, c_restart):.6g}); "
-        f"the lower one is kept (chi2_red {chi2_a:.3g}); add positions or slews, or give a "
+        f"the lower one is kept (chi2_red {chi2:.3g}); add positions or slews, or give a "
         "closer --prior"))  # fmt: skip
     return FixedPoint(problem, theta, evaluations, out)
 
