@@ -276,6 +276,10 @@ def result_plugins(args: argparse.Namespace) -> list:
 
 
 def run_calibration(args: argparse.Namespace) -> CalibrationResult:
+    return _run_calibration(args)[0]
+
+
+def _run_calibration(args: argparse.Namespace) -> tuple[CalibrationResult, CalibrationOptions]:
     from recal.calibrate import calibrate
     from service.cli.common import load_positions, progress_bar
 
@@ -290,19 +294,28 @@ def run_calibration(args: argparse.Namespace) -> CalibrationResult:
         finally:
             bar.close()
     announce_slews(args, options.slews, result.problem.slews is not None, result.notes)
-    return result
+    return result, options
 
 
 def run(args: argparse.Namespace) -> int:
+    from recal.diagnose import effects_check
     from service.cli.common import atomic_write, print_json
 
-    result = run_calibration(args)
+    result, options = _run_calibration(args)
+    # effects that move the core coefficients beyond diagnose's trust rule: said in the notes,
+    # the JSON (effects_check) and the coefficients file's metadata (unconfirmed_effects)
+    check = effects_check(result, options) if options.effects else None
+    if check and not check["trustworthy"]:
+        result.notes.append(check["warning"])
+        result.coefficients.metadata["unconfirmed_effects"] = check["effects"]
     unused = [t.name for t in result_plugins(args) if t.name not in result.terms]
     if unused:
         print(f"recal calibrate: plugin effect(s) {', '.join(unused)} loaded but not fitted: "
               "name them in --effects (recal diagnose tries them as candidates)",
               file=sys.stderr)  # fmt: skip
     doc = result.to_json_dict()
+    if check is not None:
+        doc["effects_check"] = check
     if args.output:
         atomic_write(args.output, json.dumps(doc["coefficients"], indent=2) + "\n")
     if args.report:
@@ -326,7 +339,7 @@ def format_result(r: CalibrationResult) -> str:
         f"{'+'.join(r.problem.sensors)}, latitude {r.problem.latitude_deg:g} deg "
         f"(g = {r.problem.gravity_g:.6f} g0), {r.wall_time_s:.2f} s",
         "",
-        f"{'coefficient':34s} {'value':>16s} {'1-sigma (GN)':>13s} "
+        f"{'coefficient':34s} {'value':>16s} {'1-sigma':>13s} "
         + (f"{'MC std':>11s} " if r.mcs is not None else "")
         + " status",
     ]
@@ -345,7 +358,7 @@ def format_result(r: CalibrationResult) -> str:
         lines.append(
             f"MC std: the spread of the coefficient over the {r.mcs.runs.shape[0]} Monte Carlo "
             "runs of the swarm (seed 000's MCS): how repeatably the solver lands on these "
-            "windows, not how well they determine the coefficient (that is 1-sigma (GN))"
+            "windows, not how well they determine the coefficient (that is 1-sigma)"
         )
     lines.append("")
     lines.append(f"{'invariant':12s} {'RMS before':>12s} {'RMS after':>12s} {'noise floor':>12s}")
@@ -366,6 +379,16 @@ def format_result(r: CalibrationResult) -> str:
             "rest is held at the prior"
         )
     lines.append(f"prior: {r.prior_source}")
+    if r.held_uncertainty is not None and r.observability.null.shape[1]:
+        lines.append(
+            "1-sigma: window noise plus what the held directions' prior uncertainty moves each "
+            f"coefficient by ({r.held_uncertainty.sensor_class} defaults where the prior has none)"
+        )
+    if r.convergence:
+        c = r.convergence
+        lines.append(
+            "converged: yes" if c.get("converged") else f"converged: NO -- {c.get('reason')}"
+        )
     for note in r.notes:
         lines.append(f"note: {note}")
     return "\n".join(lines) + "\n"
