@@ -490,7 +490,9 @@ class AxisNoise:
     bias_instability: minimum of the measured Allan deviation / 0.664 (IEEE Std 952), input
         units, at bias_instability_tau_s; an upper bound when the curve still falls at its
         longest averaging time (bias_instability_bound).
-    correlation_time_s, gm_sigma: the Gauss-Markov part of the fit (None when not significant).
+    correlation_time_s, gm_sigma: the Gauss-Markov part of the fit (None when not significant,
+        or when shorter than :data:`SHORT_CORRELATION_FRAMES`: then it is counted as white).
+    model: the fitted model (AVAR in input units^2, times in frames of the curve).
     """
 
     name: str
@@ -531,15 +533,22 @@ def fit_curve(curve: AllanCurve, column: int) -> WhiteGM:
     return model
 
 
+#: A Gauss-Markov part with a correlation time below this many frames is the sensor's own
+#: low-pass filter (MEMS data have lag-1 correlations from it): beyond a few frames it averages
+#: like white noise, so :func:`summarize_axis` counts it as white (q + 2 tau s2).
+SHORT_CORRELATION_FRAMES = 10.0
+
+
 def summarize_axis(curve: AllanCurve, column: int, name: str) -> AxisNoise:
     """The :class:`AxisNoise` of one column of a curve."""
     model = fit_curve(curve, column)
+    gm = model.gm_var > 0 and model.tau >= SHORT_CORRELATION_FRAMES
+    white = model.white if gm else model.white + 2 * model.tau * model.gm_var
     adev = curve.adev[:, column]
     i = int(np.argmin(adev))
-    gm = model.gm_var > 0
     return AxisNoise(
         name=name,
-        white=math.sqrt(model.white / curve.rate_hz),
+        white=math.sqrt(white / curve.rate_hz),
         bias_instability=float(adev[i]) / BIAS_INSTABILITY_FACTOR,
         bias_instability_tau_s=float(curve.tau_s[i]),
         bias_instability_bound=i == adev.shape[0] - 1,

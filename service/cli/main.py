@@ -25,6 +25,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "calibrate",
     "diagnose",
     "positions",
+    "noise",
     "navigate",
     "predict",
     "record",
