@@ -30,6 +30,19 @@ Two guards against the right residual for the wrong reason:
   model. A large shift of a strongly correlated coefficient means the two trade off in these
   positions: the residual falls, but the coefficient takes whatever the effect's model says.
   The candidate then carries a ``warning`` and ``advice`` (what would separate them).
+* ``trustworthy``: false when adding the effect moves any seed coefficient by more than
+  ``CORE_SHIFT_SIGMA`` (3) of its current 1-sigma, whatever the correlation. The fall of chi^2
+  then does not show the effect is right: an effect outside the catalogue with a similar
+  signature (at one site a heading-dependent, e.g. magnetic, bias is a linear function of the
+  gravity and Earth-rate directions) fits as well and puts the coefficients elsewhere. ``check``
+  names those kinds of effect and how to decide (a plugin, held-out positions, an independent
+  reference); the verdict says so and the diagnosis's own ``trustworthy`` (the final model
+  against the baseline) is false. It does not say the effect is wrong: a true effect moves the
+  coefficients too, and these data alone cannot tell the two apart.
+* ``heldout_chi2_red``: leave-one-position-out chi^2 of the linearised fit over its expectation
+  for a right model (1 when the model predicts the positions it did not see as well as the
+  noise allows; above 1 when it fits the noise). It catches over-fitting, not a wrong effect
+  with the same span (:func:`heldout_chi2_red`).
 * ``confounded_with``: other candidates whose fitted signatures (the change each makes to the
   whitened residual) are correlated, with the correlation and the evidence ratio
   exp(-(BIC_other - BIC_self)/2); ``similar_to`` keeps those above 0.9 (cannot be told apart).
@@ -106,6 +119,12 @@ class Candidate:
     advice: str = ""
     #: [{"effect", "signature_correlation", "evidence_ratio", "advice"}]
     confounded_with: list[dict[str, Any]] = field(default_factory=list)
+    #: False when the effect moves a seed coefficient by more than CORE_SHIFT_SIGMA (module doc)
+    trustworthy: bool = True
+    #: what shares the effect's signature and how to check it ('' when trustworthy)
+    check: str = ""
+    #: leave-one-position-out chi^2 over its expectation, with the effect (module doc)
+    heldout_chi2_red: float = float("nan")
     #: change of the whitened residual the effect makes (for the confounding measure)
     signature: np.ndarray | None = None
     needs: frozenset[str] = frozenset()
@@ -174,6 +193,9 @@ class Candidate:
             "advice": self.advice,
             "confounded_with": self.confounded_with,
             "disagreement": self.disagreement,
+            "trustworthy": self.trustworthy,
+            "check": self.check,
+            "heldout_chi2_red": num(self.heldout_chi2_red),
         }
 
 
@@ -197,11 +219,21 @@ class Diagnosis:
     #: largest misfit with the suggested effects (:func:`worst_windows`), 0-based rows
     worst_positions: list[int] = field(default_factory=list)
     worst_slews: list[dict[str, int]] = field(default_factory=list)
+    #: False when the suggested effects move a seed coefficient by more than CORE_SHIFT_SIGMA
+    #: of its baseline 1-sigma: their coefficients are not better than the baseline's until
+    #: checked (``warning`` says how)
+    trustworthy: bool = True
+    warning: str = ""
+    #: seed coefficient -> shift from the baseline to the suggested model, baseline 1-sigma
+    core_shift: dict[str, float] = field(default_factory=dict)
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
             "verdict": self.verdict,
             "model_fails": self.model_fails,
+            "trustworthy": self.trustworthy,
+            "warning": self.warning,
+            "core_shift": self.core_shift,
             "worst_positions": self.worst_positions,
             "worst_slews": self.worst_slews,
             "indexing": INDEXING,
@@ -374,6 +406,7 @@ def diagnose(
         fit0 = _rescue(base, opt, chosen, list(pool), fit0, notes)
     ranked: list[Candidate] = []
     suggested: list[str] = []
+    picked: list[Candidate] = []  # each suggestion as scored against the model it joined
     current = fit0
     ladder = [_rung("baseline", "", current, None, n)]
     for round_ in range(max_rounds):
@@ -387,6 +420,7 @@ def diagnose(
         if best is None:
             break
         suggested.append(best.effect)
+        picked.append(best)
         pool.pop(best.effect)
         start = values_by_term(current.problem.layout, current.theta)
         previous, current = current, _fit(base, opt, chosen + suggested, start=start)
@@ -406,6 +440,7 @@ def diagnose(
         ladder=ladder,
         notes=notes,
     )
+    _trust(d, fit0, current, picked)
     _conclude(d, current, n)
     return d
 
@@ -471,6 +506,7 @@ def _rung(label: str, effect: str, fit: Fit, previous: Fit | None, n: int) -> di
         "chi2_red": _finite(fit.rss / max(n - fit.rank, 1)),
         "rms_over_floor": ratio,
         "delta_bic": None if step is None else _finite(step),
+        "heldout_chi2_red": _finite(heldout_chi2_red(fit)),
         "directions": fit.rank,
     }
 
@@ -487,6 +523,7 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
             if added
             else "no candidate effect is significant"
         ) + "; the window noise is unknown, so whether the residual reaches the floor is unknown"
+        d.verdict += f"; {d.warning}" if d.warning else ""
         return
     p_fit = float(stats.chi2.sf(final.rss, dof))
     d.model_fails = p_fit < ALPHA
@@ -496,7 +533,7 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
         "the residual may fall for the wrong reason"
         if traded
         else ""
-    )
+    ) + (f"; {d.warning}" if d.warning else "")
     if not d.model_fails:
         d.verdict = (
             f"with {added} the residual is at the noise floor (chi2_red {d.chi2_red:.3g} -> "
@@ -518,6 +555,7 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
         f"(0-based rows) {per}"
         + (f"; the residual correlates with {corr}" if corr else "")
         + "; an effect outside the catalogue may be missing: write it as a --plugin"
+        + (f"; {d.warning}" if d.warning else "")
     )
 
 
@@ -552,6 +590,9 @@ def _residual_correlations(fit: Fit, base: CalibrationResult) -> dict[str, float
 #: Shift of a seed coefficient, in its current 1-sigma, and correlation with the effect above
 #: which the candidate carries a trade-off warning.
 SHIFT_WARN_SIGMA = 5.0
+#: Shift of a seed coefficient, in its current 1-sigma, beyond which the fit of an effect is not
+#: trusted without a check (``trustworthy``: false), whatever the correlation.
+CORE_SHIFT_SIGMA = 3.0
 CORRELATION_WARN = 0.9
 #: Signature correlation above which two candidates are listed as confounded / the same.
 CONFOUNDED = 0.7
@@ -614,6 +655,7 @@ def _score(
     assert fit.sd is not None
     cand.uncertainty = dict(zip(term.params, map(float, fit.sd[sl]), strict=True))
     _trade_off(cand, current, fit, sl)
+    cand.heldout_chi2_red = heldout_chi2_red(fit)
     return cand
 
 
@@ -748,6 +790,9 @@ def _trade_off(cand: Candidate, current: Fit, fit: Fit, sl: slice) -> None:
     j = where1[name]
     corr = _multiple_correlation(cov, j, eff)
     cand.trade_off = {"coefficient": name, "shift_sigma": shifts[name], "correlation": corr}
+    if abs(shifts[name]) > CORE_SHIFT_SIGMA:
+        cand.trustworthy = False
+        cand.check = _shift_check(cand.effect, cand.needs, name, shifts[name])
     if abs(shifts[name]) >= SHIFT_WARN_SIGMA and abs(corr) >= CORRELATION_WARN:
         cand.advice = _core_advice(cand.needs, cand.effect)
         cand.warning = (
@@ -755,6 +800,132 @@ def _trade_off(cand: Candidate, current: Fit, fit: Fit, sl: slice) -> None:
             f"in these positions (multiple correlation {corr:.2f}), so the fit is only as right as the "
             f"effect's model; to separate them: {cand.advice}"
         )
+
+
+DRIFT_NEEDS = frozenset({"temperature_c", "temperature_rate_c_per_h", "time_h"})
+
+
+def _look_alikes(needs: frozenset[str]) -> str:
+    """The kinds of effect outside the catalogue that share the signature of an effect with
+    these drivers."""
+    if needs & DRIFT_NEEDS:
+        return (
+            "another effect that follows temperature or time in the same way (out of the "
+            "catalogue: a thermal gradient, hysteresis, a drift that is not linear in time)"
+        )
+    return (
+        "an orientation-dependent effect out of the catalogue, such as a heading-dependent "
+        "bias (a magnetic, e.g. Faraday, sensitivity: at one site the field in body axes is a "
+        "linear function of the gravity and Earth-rate directions)"
+    )
+
+
+#: How to decide whether a large core shift is right (the same for every effect).
+SHIFT_CHECKS = (
+    "write the suspected effect as a --plugin and see which diagnose prefers and how the "
+    "coefficients then move; hold out positions (repeat some, or a second session) and compare "
+    "the predictions; or compare the moved coefficients with an independent reference (a "
+    "turntable, --known-rotations, the accepted calibration)"
+)
+
+
+def _shift_check(effect: str, needs: frozenset[str], coefficient: str, shift: float) -> str:
+    """Why a fit that moves ``coefficient`` by ``shift`` sigma needs a check, and which."""
+    return (
+        f"adding {effect} moves {coefficient} by {abs(shift):.1f} sigma (more than "
+        f"{CORE_SHIFT_SIGMA:g}): the fall of chi2 does not show {effect} is right, since "
+        f"{_look_alikes(needs)} would fit as well and move the coefficients elsewhere; before "
+        f"using them: {SHIFT_CHECKS}"
+    )
+
+
+def _trust(d: Diagnosis, fit0: Fit, final: Fit, picked: Sequence[Candidate]) -> None:
+    """The diagnosis's trust: how far the suggested effects together move the seed coefficients
+    from the baseline (in its 1-sigma), and the warning when any moves by more than
+    CORE_SHIFT_SIGMA."""
+    if not picked or fit0.sd is None:
+        return
+    where = {nm: i for i, nm in enumerate(final.problem.layout.names)}
+    names0 = fit0.problem.layout.names
+    shifts = {}
+    for i in _core_indices(names0):
+        j, sd0 = where.get(names0[i]), fit0.sd[i]
+        if j is not None and np.isfinite(sd0) and sd0 > 0:
+            shifts[names0[i]] = float((final.theta[j] - fit0.theta[i]) / sd0)
+    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:3]
+    d.core_shift = {k: shifts[k] for k in top}
+    if not top or abs(shifts[top[0]]) <= CORE_SHIFT_SIGMA and all(c.trustworthy for c in picked):
+        return
+    d.trustworthy = False
+    added = ", ".join(c.effect for c in picked)
+    needs = frozenset().union(*(c.needs for c in picked))
+    moved = ", ".join(f"{k} {abs(shifts[k]):.1f}" for k in top if abs(shifts[k]) > 1)
+    d.warning = (
+        f"NOT CONFIRMED: {added} moves the core coefficients by more than {CORE_SHIFT_SIGMA:g} "
+        f"sigma ({moved} sigma), so these coefficients are not better than the seed model's "
+        f"until checked: {_look_alikes(needs)} would fit as well and move them elsewhere; "
+        f"check: {SHIFT_CHECKS}"
+    )
+
+
+def effects_check(result: CalibrationResult, options: CalibrationOptions) -> dict[str, Any] | None:
+    """For a calibration whose model has effects beyond the seed terms: how far they moved the
+    seed coefficients from a seed-model fit of the same positions (in that fit's 1-sigma), and
+    whether the result may count as better than the seed model (``trustworthy``; the same rule
+    as diagnose's). None without effects. Costs one more calibration."""
+    effects = [e for e in options.effects if e in result.terms]
+    if not effects:
+        return None
+    seed = calibrate(result.problem.positions, replace(options, effects=()))
+    where = {nm: i for i, nm in enumerate(result.layout.names)}
+    sd0 = np.concatenate([seed.uncertainty[n] for n in seed.layout.term_slices()])
+    shifts = {}
+    for i in _core_indices(seed.layout.names):
+        nm = seed.layout.names[i]
+        j = where.get(nm)
+        if j is None or not seed.observability.estimated[i] or not sd0[i] > 0:  # NaN: held
+            continue
+        shifts[nm] = float((result.theta[j] - seed.theta[i]) / sd0[i])
+    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:3]
+    trustworthy = not top or abs(shifts[top[0]]) <= CORE_SHIFT_SIGMA
+    needs = frozenset().union(*(result.terms[e].needs for e in effects))
+    warning = "" if trustworthy else (
+        f"NOT CONFIRMED: {', '.join(effects)} moves the core coefficients by more than "
+        f"{CORE_SHIFT_SIGMA:g} sigma from the seed model's fit ("
+        + ", ".join(f"{k} {abs(shifts[k]):.1f}" for k in top if abs(shifts[k]) > 1)
+        + f" sigma): not better than the seed model's coefficients until checked; "
+        f"{_look_alikes(needs)} would fit as well; check: {SHIFT_CHECKS}"
+    )  # fmt: skip
+    return {"effects": effects, "trustworthy": trustworthy,
+            "core_shift": {k: shifts[k] for k in top}, "seed_chi2_red": _finite(seed.chi2_red),
+            "warning": warning}  # fmt: skip
+
+
+def heldout_chi2_red(fit: Fit) -> float:
+    """Leave-one-position-out chi^2 of the linearised fit over its expectation for a right
+    model: positions are left out one at a time (all their invariants; slews and known
+    rotations always stay in), the fit is redone without them along the observable directions
+    and their whitened residuals predicted. For a linear fit the deletion is exact,
+    e_g = (I - H_gg)^-1 r_g with H the hat matrix, and E[e_g' e_g] = tr((I - H_gg)^-1) under
+    the window noise; the ratio of the sums is 1 for a right model, above 1 when the model
+    fits the noise. NaN without a Jacobian or with fewer than three positions."""
+    if fit.jac is None or not fit.jac.size or fit.problem.M < 3:
+        return float("nan")
+    p = fit.problem
+    group = np.concatenate(
+        [np.arange(p.M) if p.n_of(n) == p.M and n not in ("slew", "rotation")
+         else np.full(p.n_of(n), -1) for n in p.invariant_names]
+    )  # fmt: skip
+    U, sv, _ = np.linalg.svd(fit.jac, full_matrices=False)
+    Q = U[:, sv > sv[0] * 1e-10] if sv.size and sv[0] > 0 else U[:, :0]
+    r = fit.residual()
+    rows = np.stack([np.flatnonzero(group == i) for i in range(p.M)])  # (M, invariants)
+    Qg = Q[rows]  # (M, k_inv, rank)
+    A = np.eye(rows.shape[1])[None] - Qg @ np.swapaxes(Qg, 1, 2)
+    Ainv = np.linalg.pinv(A, rcond=1e-10, hermitian=True)
+    e = np.einsum("mij,mj->mi", Ainv, r[rows])
+    expected = float(np.trace(Ainv, axis1=1, axis2=2).sum())
+    return float(np.sum(e * e) / expected) if expected > 0 else float("nan")
 
 
 def _multiple_correlation(cov: np.ndarray, j: int, eff: np.ndarray) -> float:

@@ -184,6 +184,11 @@ class GateSettings(Section):
     allow_jump: bool = Field(
         False, description="accept changes beyond max_change_sigma (after a repair), with a note"
     )
+    allow_unconfirmed_effects: bool = Field(
+        False,
+        description="accept a fit whose effects moved the core coefficients by more than 3 sigma "
+        "(recal diagnose's trust rule), with a note",
+    )
     refuse_worse_navigation: bool = Field(
         False,
         description="reject a version whose predicted static navigation error (1 sigma, from its "

@@ -1,8 +1,10 @@
 """The acceptance gate: may a new calibration replace the current coefficients?
 
 A calibration is rejected when its design is not observable enough, its residuals exceed the
-noise, a scale factor is poorly determined, or an estimated coefficient jumped too far from the
-current accepted version. Every decision carries plain-English reasons.
+noise, a scale factor is poorly determined, an estimated coefficient jumped too far from the
+current accepted version, or effects beyond the seed model moved the core coefficients by more
+than diagnose trusts without a check (:func:`recal.diagnose.effects_check`). Every decision
+carries plain-English reasons.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ class GateConfig:
     max_relative_scale_sigma: float = 2e-3
     require_verdict: str = "partial"
     allow_jump: bool = False
+    allow_unconfirmed_effects: bool = False
     refuse_worse_navigation: bool = False
     navigation_margin_nmi: float = 0.0
 
@@ -57,11 +60,14 @@ def gate(
     previous: CalibrationRecord | None,
     config: GateConfig | None = None,
     impact: NavigationImpact | None = None,
+    effects_check: Mapping[str, Any] | None = None,
 ) -> GateDecision:
     """Accept or reject ``result`` against the current accepted record ``previous``.
 
     ``impact``: the version's predicted navigation impact (:mod:`recal.ins_error`), checked when
     ``refuse_worse_navigation`` is set and summarised in the notes otherwise.
+    ``effects_check``: :func:`recal.diagnose.effects_check` of a fit with effects; an untrusted
+    one is refused (a note with ``allow_unconfirmed_effects``).
     Rejected: ``reasons`` says every limit broken. Accepted: ``reasons`` holds notes.
     """
     cfg = config or GateConfig()
@@ -71,10 +77,15 @@ def gate(
     problems = _check_verdict(result, cfg) + _check_chi2(result, cfg)
     problems += _check_scales(names, values, estimated, sigma, cfg)
     problems += _check_navigation(impact, cfg)
+    unconfirmed = _check_effects(effects_check)
+    allowed = []  # notes when allowed, else reasons to refuse
+    if cfg.allow_unconfirmed_effects:
+        allowed = [f"{u}; allowed (allow_unconfirmed_effects)" for u in unconfirmed]
+    else:
+        problems += unconfirmed
     if previous is None:
-        return GateDecision(
-            not problems, problems or ["no accepted calibration yet: nothing to compare against"]
-        )
+        first = ["no accepted calibration yet: nothing to compare against"]
+        return GateDecision(not problems, problems or first + allowed)
     jumps = _jumps(names, values, estimated, sigma, previous)
     limit = cfg.max_change_sigma
     moved = sorted(((n, s) for n, s in jumps if s > limit), key=lambda item: -item[1])
@@ -97,7 +108,16 @@ def gate(
         )
     if impact is not None and impact.from_version is not None:
         notes.append(impact.sentence())
+    notes += allowed
     return GateDecision(accepted=not problems, reasons=problems or notes)
+
+
+def _check_effects(check: Mapping[str, Any] | None) -> list[str]:
+    """An effect fit that moved the core coefficients beyond what diagnose trusts is not an
+    improvement on the seed model until checked."""
+    if not check or check.get("trustworthy", True):
+        return []
+    return [str(check.get("warning") or f"effects {check.get('effects')} are not confirmed")]
 
 
 def _check_verdict(result: CalibrationResult, cfg: GateConfig) -> list[str]:

@@ -439,7 +439,13 @@ def calibration_job(
         impact = None  # the coefficients stand without it; the document says why it is missing
         document["navigation_impact_error"] = str(exc)
     document["navigation_impact"] = None if impact is None else impact.to_json_dict()
-    decision = gate(result, previous, GateConfig(**gate_settings), impact)
+    check = None
+    if options.effects:  # not better than the seed model while its core shift is unconfirmed
+        from recal.diagnose import effects_check
+
+        check = effects_check(result, options)
+        document["effects_check"] = check
+    decision = gate(result, previous, GateConfig(**gate_settings), impact, check)
     return JobOutcome(document, decision.accepted, list(decision.reasons))
 
 

@@ -77,17 +77,21 @@ def format_diagnosis(d: Diagnosis) -> str:
         )
     lines.append("")
     if len(doc["ladder"]) > 1:
-        lines.append("model ladder:")
+        lines.append("model ladder: (held out: leave-one-position-out chi2 over its expectation)")
         for r in doc["ladder"]:
             ratios = ", ".join(f"{k} {v:.2f}" for k, v in r["rms_over_floor"].items())
             step = "" if r["delta_bic"] is None else f", dBIC {r['delta_bic']:.1f}"
             chi2 = "n/a" if r["chi2_red"] is None else f"{r['chi2_red']:.3g}"
+            if r.get("heldout_chi2_red") is not None:
+                chi2 += f" (held out {r['heldout_chi2_red']:.3g})"
             lines.append(f"  {r['model']:32s} chi2_red {chi2}{step}  (RMS/floor: {ratios})")
         lines.append("")
     if d.suggested_effects:
         eff = ",+".join(d.suggested_effects)
+        unconfirmed = "" if d.trustworthy else "; NOT CONFIRMED: see the verdict"
         lines.append(f"suggested: recal calibrate ... --effects +{eff}   "
-                     f"(chi2_red {doc['chi2_red']:.3g} -> {doc['chi2_red_with_suggested']:.3g})")  # fmt: skip
+                     f"(chi2_red {doc['chi2_red']:.3g} -> {doc['chi2_red_with_suggested']:.3g}"
+                     f"{unconfirmed})")  # fmt: skip
         for c in d.candidates:
             if c.effect in d.suggested_effects:
                 lines.append(f"  {c.effect}: {c.explanation}")
