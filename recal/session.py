@@ -305,3 +305,186 @@ def session_slews(session: Session, groups: int = DEFAULT_GROUPS) -> Slews:
         pieces.append((k, k + 1, session.gyro_out[a : b + 1].mean(axis=0), samples))
     start, end = session.hold_start_s, session.hold_end_s
     return build_slews(pieces, period, start, end, groups=groups)
+
+
+# ---- a hand-held low-cost MEMS session --------------------------------------------------------
+#: Gravity directions (body frame, unnormalised) of the hand-held poses, in the order they are
+#: taken: the six faces, then the cube diagonals, then the edge midpoints.
+_HANDHELD_UP = np.array(
+    [[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0],
+     [1, 1, 1], [-1, 1, -1], [1, -1, -1], [-1, -1, 1], [1, 1, -1], [-1, 1, 1], [1, -1, 1],
+     [-1, -1, -1], [1, 1, 0], [0, 1, 1], [1, 0, 1], [-1, 1, 0], [0, -1, 1], [1, 0, -1]],
+    dtype=float,
+)  # fmt: skip
+#: A low-cost MEMS unit in raw counts (an MPU-6050-like datasheet): counts per deg/s, per g.
+MEMS_GYRO_COUNTS_PER_DPS = 131.0
+MEMS_ACCEL_COUNTS_PER_G = 16384.0
+
+
+def mems_truth(rng: np.random.Generator | int | None = None) -> CoefficientSet:
+    """Coefficients of a low-cost MEMS unit in raw counts: gyro 131 counts/(deg/s) (K_g in
+    counts per deg/h) +-2 %, bias 0.5-3 deg/s (in deg/h); accel 16384 counts/g +-1 %, bias
+    10-50 mg; misalignment ~3e-3 rad; no quadratic term."""
+    rng = np.random.default_rng(rng)
+
+    def signed(lo: float, hi: float) -> np.ndarray:
+        return rng.choice([-1.0, 1.0], 3) * rng.uniform(lo, hi, 3)
+
+    values = {
+        "gyro.scale": MEMS_GYRO_COUNTS_PER_DPS / 3600.0 * (1.0 + 0.02 * rng.uniform(-1, 1, 3)),
+        "gyro.bias": signed(0.5, 3.0) * 3600.0,
+        "gyro.misalignment": 3e-3 * rng.normal(size=6),
+        "accel.scale": MEMS_ACCEL_COUNTS_PER_G * (1.0 + 0.01 * rng.uniform(-1, 1, 3)),
+        "accel.bias": signed(0.01, 0.05),
+        "accel.misalignment": 3e-3 * rng.normal(size=6),
+        "accel.quadratic": np.zeros(3),
+    }
+    return CoefficientSet(values, metadata={"source": "mems_truth (simulated)"})
+
+
+@dataclass(frozen=True)
+class HandheldSpec:
+    """How a hand-held session is made (times in s, rates in deg/s, accelerations in g).
+
+    hold_s: (min, max) of each pose's hold, drawn uniformly; slew_s: (min, max) of the turn to
+    the next pose (raised-cosine angle profile). tremor_deg_s: (min, max) amplitude of the hand's
+    physiological tremor, drawn per pose: a small rotation oscillating at tremor_hz (three
+    sinusoids per axis drawn in that band); it changes smoothly across a slew. hand_accel_g:
+    amplitude of the hand's own linear acceleration (three sinusoids per axis at 1-4 Hz).
+    tilt_deg: how far a pose's gravity direction strays from its nominal one.
+    gyro_noise_dps_rt_hz, accel_noise_ug_rt_hz: white noise densities. quantise: round the
+    outputs to whole counts (and clip them to int16), as a raw MEMS recording is.
+    """
+
+    hold_s: tuple[float, float] = (5.0, 10.0)
+    slew_s: tuple[float, float] = (2.0, 3.5)
+    tremor_deg_s: tuple[float, float] = (0.5, 3.0)
+    tremor_hz: tuple[float, float] = (8.0, 12.0)
+    hand_accel_g: float = 1e-3
+    tilt_deg: float = 5.0
+    gyro_noise_dps_rt_hz: float = 0.01
+    accel_noise_ug_rt_hz: float = 300.0
+    quantise: bool = True
+
+
+def simulate_handheld(
+    truth: CoefficientSet | None = None,
+    n_poses: int = 10,
+    spec: HandheldSpec | None = None,
+    rate_hz: float = 100.0,
+    latitude_deg: float = 45.0,
+    height_m: float = 0.0,
+    temperature_c: float = 25.0,
+    seed: int = 0,
+) -> Session:
+    """Simulate a low-cost MEMS unit held by hand in ``n_poses`` poses, every sample.
+
+    The body attitude is C_nb(t) = C_base(t) exp([phi(t)]x): C_base holds each pose and turns
+    between poses like :func:`simulate_session`; phi is the hand tremor (a small body-frame
+    rotation vector, 8-12 Hz). Each gyro sample is the rotation from the sample's start to its
+    end divided by the period (so the samples integrate exactly to the attitude change) plus
+    Earth rate; each accel sample is the specific force at the sample's middle, with the hand's
+    linear acceleration added. ``truth`` defaults to :func:`mems_truth` (raw counts); outputs
+    are whole counts unless ``spec.quantise`` is off. ``Session.static`` marks the holds (the
+    hand still trembles there: the accelerometer is still, the gyro is not).
+    """
+    from scipy.spatial.transform import Rotation
+
+    spec = spec or HandheldSpec()
+    rng = np.random.default_rng(seed)
+    truth = mems_truth(rng) if truth is None else truth
+    if not 1 <= n_poses <= len(_HANDHELD_UP):
+        raise RecalInputError(f"hand-held poses: 1 to {len(_HANDHELD_UP)}, not {n_poses}")
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise RecalInputError(f"rate must be positive, not {rate_hz}")
+    # Pose attitudes: the nominal gravity direction, a small hand tilt, a random heading.
+    up = _HANDHELD_UP[:n_poses] / np.linalg.norm(_HANDHELD_UP[:n_poses], axis=1, keepdims=True)
+    tilt = Rotation.from_rotvec(np.radians(spec.tilt_deg) * rng.uniform(-1, 1, (n_poses, 3)))
+    up = tilt.apply(up)
+    # C_nb^T e_up = up: align the body vector `up` with ENU up, then turn about the vertical.
+    poses = []
+    for u in up:
+        align = Rotation.align_vectors([[0.0, 0.0, 1.0]], [u])[0]
+        heading = Rotation.from_rotvec([0.0, 0.0, rng.uniform(0, 2 * np.pi)])
+        poses.append(heading * align)
+    n_hold = np.round(rng.uniform(*spec.hold_s, n_poses) * rate_hz).astype(np.int64)
+    n_slew = np.round(rng.uniform(*spec.slew_s, max(n_poses - 1, 0)) * rate_hz).astype(np.int64)
+    hold_first = np.concatenate(([0], np.cumsum(n_hold[:-1] + n_slew)))
+    hold_last = hold_first + n_hold - 1
+    N = int(hold_last[-1] + 1)
+    if N > MAX_SAMPLES:
+        raise RecalInputError(f"the session would have {N} samples (limit {MAX_SAMPLES})")
+    # Attitude on a half-sample grid: edges (sample starts and ends) and sample middles.
+    grid = np.arange(2 * N + 1) / (2.0 * rate_hz)
+    k = np.searchsorted(hold_first / rate_hz, grid, side="right") - 1  # the pose last started
+    base_rv = np.zeros((grid.shape[0], 3))
+    amp = np.empty(grid.shape[0])
+    tremor = rng.uniform(*spec.tremor_deg_s, n_poses)
+    hold_end_t = (hold_last + 1) / rate_hz
+    quats = np.empty((grid.shape[0], 4))
+    for j in range(n_poses):  # a loop over poses; the samples of each are vectorised
+        sel = k == j
+        t = grid[sel]
+        inside = t < hold_end_t[j]
+        amp[sel] = tremor[j]
+        rot = Rotation.from_quat(np.tile(poses[j].as_quat(), (t.shape[0], 1)))
+        if j < n_poses - 1 and (~inside).any():
+            rel = (poses[j].inv() * poses[j + 1]).as_rotvec()
+            u = np.clip((t[~inside] - hold_end_t[j]) * rate_hz / n_slew[j], 0.0, 1.0)
+            shape = 0.5 * (1.0 - np.cos(np.pi * u))
+            base_rv[np.flatnonzero(sel)[~inside]] = shape[:, None] * rel
+            amp[np.flatnonzero(sel)[~inside]] = tremor[j] + (tremor[j + 1] - tremor[j]) * shape
+            rot = rot * Rotation.from_rotvec(base_rv[sel])
+        quats[sel] = rot.as_quat()
+    # Tremor: per axis three sinusoids in the tremor band, rate amplitude amp (deg/s) in all.
+    f = rng.uniform(*spec.tremor_hz, (3, 3))
+    phase = rng.uniform(0, 2 * np.pi, (3, 3))
+    wave = np.sin(2 * np.pi * f[None] * grid[:, None, None] + phase[None]) / (2 * np.pi * f[None])
+    phi = np.radians(amp)[:, None] * wave.sum(axis=2) / 3.0  # (G, 3) rad
+    C = Rotation.from_quat(quats) * Rotation.from_rotvec(phi)  # body -> ENU
+    edges, mid = C[0::2], C[1::2]
+    lat = math.radians(latitude_deg)
+    g = normal_gravity_g(latitude_deg, height_m)
+    w_n = np.array([0.0, OMEGA_IE_DEG_H * math.cos(lat), OMEGA_IE_DEG_H * math.sin(lat)])
+    turn = (edges[:-1].inv() * edges[1:]).as_rotvec() * rate_hz  # rad/s over each sample
+    gyro_in = np.degrees(turn) * 3600.0 + mid.inv().apply(w_n)
+    fa, pa = rng.uniform(1.0, 4.0, (3, 3)), rng.uniform(0, 2 * np.pi, (3, 3))
+    t_mid = grid[1::2]
+    hand = spec.hand_accel_g / 3.0 * np.sin(2 * np.pi * fa[None] * t_mid[:, None, None] + pa[None])
+    accel_in = mid.inv().apply(np.array([0.0, 0.0, g]) + hand.sum(axis=2))
+    time_s = np.arange(N) / rate_hz
+    temp = np.full(N, float(temperature_c))
+    ctx = {
+        "temperature_c": temp,
+        "temperature_rate_c_per_h": np.zeros(N),
+        "time_h": time_s / 3600.0,
+        "specific_force_g": accel_in,
+    }
+    sigma = {
+        "gyro": spec.gyro_noise_dps_rt_hz * 3600.0 * math.sqrt(rate_hz),  # deg/h per sample
+        "accel": spec.accel_noise_ug_rt_hz * 1e-6 * math.sqrt(rate_hz),  # g per sample
+    }
+    out = {}
+    for sensor, x in (("gyro", gyro_in), ("accel", accel_in)):
+        theta, model = truth_model(truth, sensor)
+        y = model.forward(theta, x + rng.normal(size=(N, 3)) * sigma[sensor], ctx)[0]
+        out[sensor] = np.clip(np.round(y), -32768, 32767) if spec.quantise else y
+    static = np.zeros(N, dtype=bool)
+    for a, b in zip(hold_first, hold_last, strict=True):
+        static[a : b + 1] = True
+    return Session(
+        time_s=time_s,
+        gyro_out=out["gyro"],
+        accel_out=out["accel"],
+        temperature_c=temp,
+        static=static,
+        gyro_in_dph=gyro_in,
+        accel_in_g=accel_in,
+        hold_first=hold_first,
+        hold_last=hold_last,
+        orientations=np.array([p.as_matrix() for p in poses]),
+        rate_hz=float(rate_hz),
+        latitude_deg=float(latitude_deg),
+        height_m=float(height_m),
+        gravity_g=g,
+    )

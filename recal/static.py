@@ -63,6 +63,13 @@ from recal.positions import (
 #: "gyro_not_still": the gyro was never quiet long enough in a still stretch of the accelerometer,
 #: which is kept as an accelerometer-only window (rejected for the gyro, used for the accel).
 REJECT_REASONS = ("too_short", "invalid_status", "sequence_gap", "rotating", "gyro_not_still")
+#: An accelerometer-only window needs the gyro loud through the pose (tremor): when one quiet
+#: stretch of both triads covers this share of the accelerometer's still run, the gyro was
+#: still and only the edges moved (a short pose whose slews the accelerometer cannot see yet),
+#: and the run stays rejected as the both-triad detector found it. Tremor leaves the gyro quiet
+#: for a few tenths of a second at a time (at most 0.32 of a pose in the hand-held simulations),
+#: a 0.6 s hold between turns of a FOG for about 0.75 of the accelerometer's run.
+GYRO_QUIET_SHARE = 0.5
 #: Each reason in plain words, for summaries and reports.
 REASON_TEXT = {
     "too_short": "too short",
@@ -302,6 +309,8 @@ class DetectionReport:
     still_stretches: int = 0
     still_stretches_used: int = 0
     accel_only_windows: int = 0  # windows kept for the accelerometer only (gyro not still)
+    #: (start_s, end_s) of rejected stretches that are part of a pose other windows use.
+    in_used_pose: set[tuple[float, float]] = field(default_factory=set)
     longest_short_frames: int = 0  # the longest of them, quiet frames
     edge_trim_frames: int = 0
     required_frames: int = 0
@@ -340,6 +349,8 @@ class DetectionReport:
             text = REASON_TEXT.get(why, why)
             if why == "too_short" and need:
                 text += f" (a window needs {need:.3g} s of still frames)"
+            if (a, b) in self.in_used_pose:
+                text += "; part of a pose another window uses"
             lines.append(f"  {a:.2f}-{b:.2f} s ({b - a:.2f} s): {text}")
         rest = stretches[limit:]
         if rest:
@@ -511,6 +522,7 @@ class StaticDetector:
         # nothing there); its runs the both-triad track left without a window become
         # accelerometer-only windows (see _merge_accel).
         self._accel_track: StaticDetector | None = None
+        self._shared: list[tuple] = []  # traces the detector that owns this track computed
         if config.accel_only_windows and self._thr_g != math.inf:
             track = replace(config, gyro_threshold=math.inf, accel_only_windows=False)
             self._accel_track = StaticDetector(track)
@@ -559,8 +571,8 @@ class StaticDetector:
             part = {k: (None if v is None else v[sl]) for k, v in extra.items()}
             self._append(self._rows(t[sl], g[sl], a[sl], **part))
             self._process(final=False)
-        if self._accel_track is not None:
-            self._merge_accel(self._accel_track.feed(t, g, a, **extra))
+            if self._accel_track is not None:  # slice by slice: it takes this one's traces
+                self._merge_accel(self._accel_track.feed(t[sl], g[sl], a[sl], **part))
         out, self._out = self._out, []
         return out
 
@@ -598,17 +610,27 @@ class StaticDetector:
         self._covered += [(w.start_s, w.end_s, None) for w in self._out]
         self._covered += [(a, b, st) for st in own[self._stretches_seen :] for a, b in [st[:2]]]
         drop: set[int] = set()
+        # a window is its quiet run trimmed: the run's both-triad rejections reach T frames out
+        reach = (self._geom.trim + 0.5) / self._geom.rate if self._geom is not None else 0.0
         for w in accel_windows:
-            hit = self._overlapping(w.start_s, w.end_s)
+            hit = self._overlapping(w.start_s - reach, w.end_s + reach)
             rep.still_stretches += 1
-            rep.still_stretches_used += 1
-            if any(c[2] is None for c in hit):
-                continue  # the both-triad windows use this pose
+            if any(c[2] is None for c in hit):  # the both-triad windows use this pose
+                rep.still_stretches_used += 1
+                parts = [c[2] for c in hit if c[2] is not None and c[2][:2] not in rep.in_used_pose]
+                rep.in_used_pose.update(st[:2] for st in parts)
+                self._short_seen(-sum(st[2] == "too_short" for st in parts), 0.0)
+                continue
+            run = (w.start_s - reach, w.end_s + reach)
+            longest = max((min(b, run[1]) - max(a, run[0]) for a, b, _ in hit), default=0.0)
+            if longest >= GYRO_QUIET_SHARE * (run[1] - run[0]):
+                continue  # a short pose with motion at its edges, not tremor: as rejected
             for _, _, st in hit:
                 if id(st) not in drop:
                     drop.add(id(st))
                     rep.rejected[st[2]] -= 1
             self._out.append(replace(w, gyro_still=False))
+            rep.still_stretches_used += 1
             rep.windows_kept += 1
             rep.accel_only_windows += 1
             rep.rejected["gyro_not_still"] += 1
@@ -618,16 +640,35 @@ class StaticDetector:
             rep.still_stretches += 1
             if any(c[2] is None for c in hit):
                 rep.still_stretches_used += 1  # e.g. a turn inside it: both sides kept
-            elif not hit:
+            elif not hit:  # the gyro hid this pose from the both-triad track: list it
                 rep.rejected[why] += 1
                 rep._add_stretches(a, b, why)
+                if why == "too_short":
+                    self._short_seen(1, b - a)
         self._track_seen = len(track.rejected_stretches)
         if drop:
+            gone = [st for st in own if id(st) in drop]
             rep.rejected_stretches = [st for st in own if id(st) not in drop]
             self._covered = [c for c in self._covered if c[2] is None or id(c[2]) not in drop]
+            self._short_seen(-sum(st[2] == "too_short" for st in gone), 0.0)
         self._stretches_seen = len(rep.rejected_stretches)
         self._out.sort(key=lambda w: w.start_index)
         self._prune_covered()
+
+    def _short_seen(self, count: int, span_s: float) -> None:
+        """Keep the too-short tally right: tremor fragments absorbed by an accelerometer-only
+        window, or part of a pose other windows use, are no pose lost; a short pose only the
+        accel track saw is one."""
+        rep = self.report
+        rep.short_stretches = max(rep.short_stretches + count, 0)
+        rate = self._geom.rate
+        if count > 0:
+            frames = round(span_s * rate) + 1
+            rep.longest_short_frames = max(rep.longest_short_frames, frames)
+        elif count < 0:  # the longest left, from the listed stretches
+            left = [b - a for a, b, why in rep.rejected_stretches
+                    if why == "too_short" and (a, b) not in rep.in_used_pose]  # fmt: skip
+            rep.longest_short_frames = round(max(left) * rate) + 1 if left else 0
 
     def _overlapping(self, start_s: float, end_s: float) -> list[tuple]:
         return [c for c in self._covered if c[0] <= end_s and c[1] >= start_s]
@@ -774,11 +815,14 @@ class StaticDetector:
         hi = M if final else max(M - h, min(h, M))
         if hi <= lo:
             return None
-        n = np.zeros(hi - lo)
-        tra = np.full(hi - lo, np.inf)
-        trg = np.full(hi - lo, np.inf)
+        shared = self._shared.pop(0) if self._shared else None
+        if shared is not None and (shared[0] != lo or shared[1].shape[0] != hi - lo):
+            raise AssertionError("the accel track fell out of step with its detector")
+        n = np.zeros(hi - lo) if shared is None else shared[1]
+        tra = np.full(hi - lo, np.inf) if shared is None else shared[2]
+        trg = np.full(hi - lo, np.inf) if shared is None else shared[3]
         f_lo, f_hi = max(lo, h), min(hi, M - h)  # centres with a full window
-        if f_hi > f_lo:
+        if f_hi > f_lo and shared is None:
             a_lo, a_hi = f_lo - h, f_hi - h  # window starts
             b0 = a_lo // W * W
             rows = self._view(b0, f_hi + h)
@@ -811,6 +855,8 @@ class StaticDetector:
                 gyro_trace=trg,
             )
         self._next_center = hi
+        if self._accel_track is not None:  # the same frames, the same traces: computed once
+            self._accel_track._shared.append((lo, n, tra, trg))
         return lo, n, tra, trg
 
     def _features(self, rows: np.ndarray) -> np.ndarray:
@@ -1362,20 +1408,24 @@ class NoiseFloorEstimator:
         # Provisional floor: a low quantile, inside the still blocks when at least ~15 % of the
         # recording is still (wherever that is). The floor is the median of the blocks near it.
         qa, qg = np.quantile(tra, FLOOR_QUANTILE), np.quantile(trg, FLOOR_QUANTILE)
-        still = (tra <= FLOOR_SPREAD * qa) & (trg <= FLOOR_SPREAD * qg)
-        if not still.any():  # the two triads' quietest blocks do not coincide
-            tiny = np.finfo(float).tiny
-            score = tra / max(qa, tiny) + trg / max(qg, tiny)
-            still = score <= np.quantile(score, FLOOR_QUANTILE)
+        # Each triad's floor from its own quiet blocks: a hand's tremor keeps the gyro loud
+        # where the accelerometer is still, and must not pick the accelerometer's blocks (the
+        # few where both happen to be quietest would give it a floor, and a threshold, too low).
+        still_a, still_g = tra <= FLOOR_SPREAD * qa, trg <= FLOOR_SPREAD * qg
+        still = still_a | still_g
         quant = self._step**2 / 12.0  # a still quantised signal varies by at least this
         quant[~np.isfinite(quant)] = 0.0
-        accel = max(float(np.median(tra[still])), float(quant[3:].sum()))
-        gyro = max(float(np.median(trg[still])), float(quant[:3].sum()))
+        accel = max(float(np.median(tra[still_a])), float(quant[3:].sum()))
+        gyro = max(float(np.median(trg[still_g])), float(quant[:3].sum()))
         rate = self._rate
         span = f"{start[still].min():.0f}-{start[still].max() + self._W / rate:.0f} s"
+        counts = (
+            f"{int(still_a.sum())}" if (still_a == still_g).all()
+            else f"accel {int(still_a.sum())}, gyro {int(still_g.sum())}"
+        )  # fmt: skip
         source = (
             f"quietest {self._W / rate:.3g} s stretches of the recording "
-            f"({int(still.sum())} of {blocks.shape[0]}, within {span})"
+            f"({counts} of {blocks.shape[0]}, within {span})"
         )
         return NoiseFloor(accel=accel, gyro=gyro, window_samples=self._W, source=source)
 

@@ -443,11 +443,12 @@ def test_windows_to_columns_is_a_positions_table():
     t, g, a = s.build()
     ws = detect_static(t, g, a, config=DetectorConfig(**EXPLICIT)).windows
     cols = windows_to_columns(ws)
-    expected = {"start_s", "end_s", "samples", "frames_lost", "frames_invalid"}
+    expected = {"start_s", "end_s", "samples", "frames_lost", "frames_invalid", "gyro_still"}
     for sensor in ("gyro", "accel"):
         for suffix in ("", "_std", "_sem"):
             expected |= {f"{sensor}_{ax}{suffix}" for ax in "xyz"}
     assert set(cols) == expected
+    assert (cols["gyro_still"] == 1).all()  # both triads still in both holds
     table = Positions.from_columns(cols)
     assert len(table) == 2
     np.testing.assert_allclose(table.accel[1], ws[1].accel)
@@ -485,7 +486,9 @@ def test_memory_is_bounded_by_the_open_window():
         high = max(high, det.buffered_frames)
     (w,) = det.flush()
     assert w.samples > 239_000
-    assert high < 1000 + 3 * 101 + 50  # one chunk, two moving windows and the trim
+    # per track (both triads, and the accelerometer alone for per-triad stillness): one
+    # chunk, two moving windows and the trim
+    assert high < 2 * (1000 + 3 * 101 + 50)
 
 
 # ---- zero-variance input ---------------------------------------------------------------------
