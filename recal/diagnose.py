@@ -74,6 +74,9 @@ from recal.problem import Problem
 from recal.terms import Term, catalogue_terms
 
 ALPHA = 0.01
+#: Share of the excess misfit by which another candidate must explain more to be named as the
+#: one that explains it better.
+BETTER = 0.1
 
 
 @dataclass
@@ -125,6 +128,8 @@ class Candidate:
     check: str = ""
     #: leave-one-position-out chi^2 over its expectation, with the effect (module doc)
     heldout_chi2_red: float = float("nan")
+    #: the best-ranked candidate that explains more of the misfit than this one ('' if none)
+    explained_better_by: str = ""
     #: change of the whitened residual the effect makes (for the confounding measure)
     signature: np.ndarray | None = None
     needs: frozenset[str] = frozenset()
@@ -153,10 +158,19 @@ class Candidate:
                 "and against the number of effects tried"
             )
             if self.explained_fraction < 0.5:
+                share = (
+                    "under 1%"
+                    if self.explained_fraction < 0.01
+                    else f"{self.explained_fraction:.0%}"
+                )
+                other = (
+                    f"a misfit another effect explains better ({self.explained_better_by})"
+                    if self.explained_better_by
+                    else "a misfit no candidate explains (see the verdict)"
+                )
                 return (
-                    f"{head}; it explains only {self.explained_fraction:.0%} of the excess, so "
-                    "it takes a share of a misfit that another effect explains better (see the "
-                    "first ranked); not significant"
+                    f"{head}; it explains only {share} of the excess, so it takes a share of "
+                    f"{other}; not significant"
                 )
             return f"{head}; a fall this size is what chance gives one of many effects tried"
         if by_p and not by_bic:
@@ -327,11 +341,9 @@ def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
         known = fit.problem.noise_known_for(n)
         floor = float(np.sqrt(np.mean(fit.problem.sigma[n] ** 2))) if known else None
         rms = float(np.sqrt(np.mean(r**2)))
-        w = r / fit.problem.sigma[n]
-        # a slew has two residuals and a known rotation three: rank the slews / rotations, 0-based
-        size = {"slew": 2, "rotation": 3}.get(n, 1)
-        score = np.sum(w.reshape(-1, size) ** 2, axis=1)
-        key = {"slew": "worst_slews", "rotation": "worst_rotations"}.get(n, "worst_positions")
+        # a slew has two residuals and a known rotation three: rank what they belong to, 0-based
+        key, owner = _owners(fit.problem, n)
+        score = np.bincount(owner, weights=(r / fit.problem.sigma[n]) ** 2)
         rows.append(
             {
                 "name": n,
@@ -339,11 +351,32 @@ def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
                 "noise_floor": floor,
                 "ratio": rms / floor if floor else None,
                 "unit": UNITS[n],
-                key: [int(i) for i in np.argsort(-score, kind="stable")[:3]],
+                key: [int(i) for i in np.argsort(-score, kind="stable")[:3] if score[i] > 0],
                 "per_position": [float(v) for v in r],
             }
         )
     return rows
+
+
+#: Invariants with one residual per position, in position order.
+PER_POSITION = frozenset({"gyro_norm", "accel_norm", "dot"})
+
+
+def _owners(problem: Problem, name: str) -> tuple[str, np.ndarray]:
+    """What each residual of invariant ``name`` belongs to: (JSON key, 0-based index per
+    residual) -- a position, a slew (two residuals; a closed turn is one of its slews) or a
+    known rotation (three)."""
+    k = problem.n_of(name)
+    if name in PER_POSITION:  # a triad's invariants may skip the windows it was not still in
+        rows = getattr(problem, "rows_of", None)
+        return "worst_positions", np.arange(k) if rows is None else np.asarray(rows(name))
+    if name == "slew":
+        return "worst_slews", np.repeat(np.arange(k // 2), 2)
+    if name == "closure" and getattr(problem, "closed_turns", None) is not None:
+        return "worst_slews", np.asarray(problem.closed_turns.index, dtype=int)
+    if name == "rotation":
+        return "worst_rotations", np.repeat(np.arange(k // 3), 3)
+    return f"worst_{name}", np.arange(k)
 
 
 #: How diagnose numbers positions and slews in its text and JSON.
@@ -362,10 +395,11 @@ def worst_windows(fit: Fit, k: int = 3) -> tuple[list[int], list[dict[str, int]]
     for n in p.invariant_names:
         rows = w[start : start + p.n_of(n)]
         start += p.n_of(n)
-        if n == "slew":
-            per_slew += np.sum(rows.reshape(-1, 2) ** 2, axis=1)
-        elif n != "rotation":
-            per_pos += rows**2
+        key, owner = _owners(p, n)
+        if key == "worst_positions":
+            per_pos += np.bincount(owner, weights=rows**2, minlength=p.M)
+        elif key == "worst_slews":
+            per_slew += np.bincount(owner, weights=rows**2, minlength=per_slew.size)
     positions = [int(i) for i in np.argsort(-per_pos, kind="stable")[:k]]
     slews = [
         {"slew": int(i), "from_row": int(p.slews.first[i]), "to_row": int(p.slews.second[i])}
@@ -426,6 +460,9 @@ def diagnose(
         previous, current = current, _fit(base, opt, chosen + suggested, start=start)
         ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n))
     ranked.sort(key=lambda c: (not c.identifiable, np.nan_to_num(c.delta_bic, nan=np.inf)))
+    for c in ranked:  # for the disagreement note: who explains this misfit clearly better
+        c.explained_better_by = next((o.effect for o in ranked if o.identifiable and
+                                      o.explained_fraction > c.explained_fraction + BETTER), "")  # fmt: skip
     _confounding(ranked)
     final_raw = current.problem.raw_residuals(current.theta[None])
     d = Diagnosis(
@@ -913,19 +950,23 @@ def heldout_chi2_red(fit: Fit) -> float:
         return float("nan")
     p = fit.problem
     group = np.concatenate(
-        [np.arange(p.M) if p.n_of(n) == p.M and n not in ("slew", "rotation")
-         else np.full(p.n_of(n), -1) for n in p.invariant_names]
+        [_owners(p, n)[1] if n in PER_POSITION else np.full(p.n_of(n), -1)
+         for n in p.invariant_names]
     )  # fmt: skip
     U, sv, _ = np.linalg.svd(fit.jac, full_matrices=False)
     Q = U[:, sv > sv[0] * 1e-10] if sv.size and sv[0] > 0 else U[:, :0]
     r = fit.residual()
-    rows = np.stack([np.flatnonzero(group == i) for i in range(p.M)])  # (M, invariants)
-    Qg = Q[rows]  # (M, k_inv, rank)
-    A = np.eye(rows.shape[1])[None] - Qg @ np.swapaxes(Qg, 1, 2)
-    Ainv = np.linalg.pinv(A, rcond=1e-10, hermitian=True)
-    e = np.einsum("mij,mj->mi", Ainv, r[rows])
-    expected = float(np.trace(Ainv, axis1=1, axis2=2).sum())
-    return float(np.sum(e * e) / expected) if expected > 0 else float("nan")
+    members = [np.flatnonzero(group == i) for i in range(p.M)]
+    press = expected = 0.0
+    for size in {len(m) for m in members} - {0}:  # positions with as many rows, batched
+        rows = np.stack([m for m in members if len(m) == size])  # (G, size)
+        Qg = Q[rows]  # (G, size, rank)
+        A = np.eye(size)[None] - Qg @ np.swapaxes(Qg, 1, 2)
+        Ainv = np.linalg.pinv(A, rcond=1e-10, hermitian=True)
+        e = np.einsum("gij,gj->gi", Ainv, r[rows])
+        press += float(np.sum(e * e))
+        expected += float(np.trace(Ainv, axis1=1, axis2=2).sum())
+    return press / expected if expected > 0 else float("nan")
 
 
 def _multiple_correlation(cov: np.ndarray, j: int, eff: np.ndarray) -> float:

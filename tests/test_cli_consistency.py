@@ -135,3 +135,28 @@ def test_diagnose_verdict_and_json_name_the_same_worst_positions():
     w = {k: v / d.baseline.problem.sigma[k] for k, v in d.final_residuals.items()}
     score = sum(v**2 for v in w.values())
     assert set(named) == set(np.argsort(-score)[:3].tolist())
+
+
+def test_a_disagreement_note_names_the_effect_that_explains_more_or_none():
+    """The note used to send the reader to 'the first ranked' even when it was that candidate:
+    out-of-catalogue misfit (a magnetic bias), only drift-like candidates tried."""
+    from pathlib import Path
+
+    from recal.plugins import hidden_plugin
+    from recal.simulate import design_orientations
+    from service.cli.common import load_plugin
+
+    plugin = Path(__file__).resolve().parents[1] / "docs" / "examples" / "faraday_plugin.py"
+    (term,) = load_plugin(str(plugin))
+    C = design_orientations("random", 24, np.random.default_rng(2))
+    truth = CoefficientSet.seed_truth()
+    truth.values["gyro.faraday"] = np.array([0.04, -0.03, 0.05])
+    pos = simulate_positions(truth, "random", 24, 45.0, seed=2,
+                             hidden=[hidden_plugin(term, C, 45.0)])  # fmt: skip
+    d = diagnose(pos, CalibrationOptions(latitude_deg=45.0),
+                 candidates=["gyro.bias_drift", "accel.scale_asymmetry"])  # fmt: skip
+    top = d.candidates[0]
+    assert top.effect == "gyro.bias_drift" and top.delta_bic < 0 and not top.significant
+    assert top.explained_better_by == ""
+    assert "a misfit no candidate explains (see the verdict)" in top.disagreement
+    assert "first ranked" not in format_diagnosis(d)
