@@ -833,7 +833,7 @@ def _trade_off(cand: Candidate, current: Fit, fit: Fit, sl: slice) -> None:
     if abs(shifts[name]) >= SHIFT_WARN_SIGMA and abs(corr) >= CORRELATION_WARN:
         cand.advice = _core_advice(cand.needs, cand.effect)
         cand.warning = (
-            f"adding {cand.effect} moves {name} by {abs(shifts[name]):.0f} sigma: they trade off "
+            f"adding {cand.effect} moves {name} by {abs(shifts[name]):.1f} sigma: they trade off "
             f"in these positions (multiple correlation {corr:.2f}), so the fit is only as right as the "
             f"effect's model; to separate them: {cand.advice}"
         )
