@@ -191,6 +191,7 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         + esc(",+".join(d.suggested_effects))
         + f"); chi2_red {doc['chi2_red']:.3g} &rarr; "
         f"{doc['chi2_red_with_suggested']:.3g}."
+        + ("" if d.trustworthy else " <b>Not confirmed</b>: see the verdict.")
         if d.suggested_effects
         else f"No candidate effect is significant; chi2_red {doc['chi2_red']:.3g}."
     )
@@ -245,11 +246,14 @@ def _ladder_html(doc: dict) -> str:
             for n in names
         )
         chi2 = "-" if r["chi2_red"] is None else f"{r['chi2_red']:.3g}"
+        held = r.get("heldout_chi2_red")
+        held = "-" if held is None else f"{held:.3g}"
         step = "-" if r["delta_bic"] is None else f"{r['delta_bic']:.1f}"
-        rows.append(f"<tr><td>{html.escape(r['model'])}</td><td>{chi2}</td>{cells}"
-                    f"<td>{step}</td></tr>")  # fmt: skip
+        rows.append(f"<tr><td>{html.escape(r['model'])}</td><td>{chi2}</td><td>{held}</td>"
+                    f"{cells}<td>{step}</td></tr>")  # fmt: skip
     return (
         "<h2>Model ladder</h2><table><tr><th>model</th><th>chi2_red</th>"
+        "<th>held out (leave-one-position-out chi2 / its expectation)</th>"
         f"{head}<th>delta BIC of the step</th></tr>{''.join(rows)}</table>"
     )
 

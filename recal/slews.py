@@ -804,6 +804,37 @@ def _chain_components(w, x, y, z):
     return w[..., 0], x[..., 0], y[..., 0], z[..., 0]
 
 
+def _group_rotvecs(
+    slews: Slews,
+    gain: np.ndarray,
+    A: np.ndarray,
+    offset: np.ndarray,
+    zero_rate: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-group rotation vectors (P, S, 3, G), rad, and the rest rate (P, S, 3), rad/s, of
+    :func:`slew_rotations` (see there for the arguments)."""
+    P, S = A.shape[0], len(slews)
+    Ainv = inv3(A)[:, None]  # (P, 1, 3, 3)
+    Mm = DEG_H_TO_RAD_S * Ainv / gain[:, :, None, :]  # (P, S|1, 3, 3): column j / gain_j
+    rest = (Ainv @ (slews.reference[None] / gain - offset)[..., None])[..., 0]
+    rest = DEG_H_TO_RAD_S * np.broadcast_to(rest, (P, S, 3))  # (P, S, 3) rad/s
+    Mb = np.broadcast_to(Mm, (P, S, 3, 3))
+    if zero_rate is None:
+        c = (rest * slews.period_s)[..., None]  # per-sample rest increment, rad, (P, S, 3, 1)
+    else:
+        rho = (np.asarray(zero_rate, float) - slews.reference) * slews.period_s  # (S, 3)
+        c = -(Mb @ rho[None, :, :, None])  # (P, S, 3, 1)
+        rest = np.zeros_like(rest)
+    phi = Mb @ slews.sums.transpose(0, 2, 1)  # (P, S, 3, G)
+    phi += slews.group_samples[None, :, None, :] * c
+    mw = Mb @ slews.weighted.transpose(0, 2, 1)
+    phi[:, :, 0] += 0.5 * (mw[:, :, 1] * c[:, :, 2] - mw[:, :, 2] * c[:, :, 1])
+    phi[:, :, 1] += 0.5 * (mw[:, :, 2] * c[:, :, 0] - mw[:, :, 0] * c[:, :, 2])
+    phi[:, :, 2] += 0.5 * (mw[:, :, 0] * c[:, :, 1] - mw[:, :, 1] * c[:, :, 0])
+    phi += cofactor3(Mb) @ slews.cross.transpose(0, 2, 1)
+    return phi, rest
+
+
 def slew_rotations(
     slews: Slews,
     gain: np.ndarray,
@@ -827,25 +858,7 @@ def slew_rotations(
     Component-major inside: three (P x S) batches of 3x3 by 3xG matrix products, then
     elementwise work on (P, S, G) arrays.
     """
-    P, S = A.shape[0], len(slews)
-    Ainv = inv3(A)[:, None]  # (P, 1, 3, 3)
-    Mm = DEG_H_TO_RAD_S * Ainv / gain[:, :, None, :]  # (P, S|1, 3, 3): column j / gain_j
-    rest = (Ainv @ (slews.reference[None] / gain - offset)[..., None])[..., 0]
-    rest = DEG_H_TO_RAD_S * np.broadcast_to(rest, (P, S, 3))  # (P, S, 3) rad/s
-    Mb = np.broadcast_to(Mm, (P, S, 3, 3))
-    if zero_rate is None:
-        c = (rest * slews.period_s)[..., None]  # per-sample rest increment, rad, (P, S, 3, 1)
-    else:
-        rho = (np.asarray(zero_rate, float) - slews.reference) * slews.period_s  # (S, 3)
-        c = -(Mb @ rho[None, :, :, None])  # (P, S, 3, 1)
-        rest = np.zeros_like(rest)
-    phi = Mb @ slews.sums.transpose(0, 2, 1)  # (P, S, 3, G)
-    phi += slews.group_samples[None, :, None, :] * c
-    mw = Mb @ slews.weighted.transpose(0, 2, 1)
-    phi[:, :, 0] += 0.5 * (mw[:, :, 1] * c[:, :, 2] - mw[:, :, 2] * c[:, :, 1])
-    phi[:, :, 1] += 0.5 * (mw[:, :, 2] * c[:, :, 0] - mw[:, :, 0] * c[:, :, 2])
-    phi[:, :, 2] += 0.5 * (mw[:, :, 0] * c[:, :, 1] - mw[:, :, 1] * c[:, :, 0])
-    phi += cofactor3(Mb) @ slews.cross.transpose(0, 2, 1)
+    phi, rest = _group_rotvecs(slews, gain, A, offset, zero_rate)
     angle = np.sqrt(np.einsum("psig,psig->psg", phi, phi))
     small = angle < 1e-6
     k = np.where(small, 0.5 - angle**2 / 48, np.sin(0.5 * angle) / np.where(small, 1.0, angle))
@@ -910,6 +923,7 @@ def slew_sigma(
     basis: np.ndarray,
     earth_rate: bool,
     latitude_deg: float,
+    excess_rad: float = 0.0,
 ) -> np.ndarray | None:
     """1-sigma (2 S,) of the slew residuals, rad, from the windows' noise; None without it.
 
@@ -920,6 +934,9 @@ def slew_sigma(
     * Earth rate: with ``earth_rate`` the noise of the rest rate used for it, (u sem T)^2; without,
       the rotation left in, Omega cos(lat) T about an unknown north: (Omega cos(lat) T)^2 / 2
       per component.
+
+    * ``excess_rad``: an unmodelled error per slew residual, estimated from the slews' own
+      misfit (:func:`recal.calibrate.slew_excess`), 0 when they fit to their noise.
 
     gyro_std_in, gyro_sem_in, accel_sem_in: (M, 3) per window in input units.
     """
@@ -933,6 +950,7 @@ def slew_sigma(
     g2 = np.linalg.norm(f_second, axis=1)
     var = var + np.mean(accel_sem_in[i] ** 2, axis=1) / g1**2
     var2 = var[:, None] + np.einsum("sji,si->sj", basis**2, accel_sem_in[j] ** 2) / g2[:, None] ** 2
+    var2 += excess_rad**2  # the unmodelled per-slew error, when the slews show one
     if earth_rate:
         if gyro_sem_in is not None:
             var2 += ((DEG_H_TO_RAD_S * T) ** 2 * np.mean(gyro_sem_in[i] ** 2, axis=1))[:, None]
@@ -955,3 +973,131 @@ def integrate_samples(rates_rad_s: np.ndarray, period_s: float) -> np.ndarray:
     for r in quat_from_rotvec(np.asarray(rates_rad_s, float) * period_s):
         q = quat_multiply(q, r)
     return q
+
+
+# ---- closed turns ------------------------------------------------------------------------------
+#: Default 1-sigma, deg, of the heading closure of a closed turn (a turn of the unit by whole
+#: revolutions about the vertical, put back against the same edge or mark; the Ferraris / imucal
+#: protocol): by hand against a table edge a fraction of a degree. imucal's Ferraris session
+#: integrates its three 360-degree turns to 360 +- 0.06 deg with imucal's own scale factors.
+TURN_CLOSURE_SIGMA_DEG = 0.1
+#: A slew is a closed turn when the gravity direction returns to within this angle, deg ...
+CLOSED_TURN_TILT_DEG = 1.0
+#: ... the gyro integrates within this of a whole, non-zero number of turns about the vertical,
+#: deg (room for a prior scale a few % off) ...
+CLOSED_TURN_SLACK_DEG = 30.0
+#: ... and off the vertical by less than this, deg (a turn, not a tumble that ends where it began).
+CLOSED_TURN_OFF_AXIS_DEG = 20.0
+
+
+@dataclass(frozen=True, eq=False)
+class ClosedTurns:
+    """Slews taken as whole turns about the vertical (gravity returns to where it was while the
+    gyro integrates close to k x 360 deg about it). Their rotation is then known: k x 360 deg,
+    i.e. none, with the heading-closure 1-sigma ``sigma_rad``. That pins the scale factor along
+    the vertical, which the gravity directions alone cannot see.
+
+    index: (C,) positions in the :class:`Slews` arrays. turns: (C,) signed whole turns k.
+    axis: (C, 3) the vertical (unit gravity direction) in window ``first``'s body frame.
+    """
+
+    index: np.ndarray
+    turns: np.ndarray
+    axis: np.ndarray
+    sigma_rad: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+
+def integrated_rotvec(
+    slews: Slews,
+    gain: np.ndarray,
+    A: np.ndarray,
+    offset: np.ndarray,
+    zero_rate: np.ndarray | None = None,
+) -> np.ndarray:
+    """(P, S, 3) sum of the group rotation vectors over each slew, rad: the rotation vector of a
+    turn about a fixed axis with its whole revolutions kept (a quaternion forgets them)."""
+    phi, _ = _group_rotvecs(slews, gain, A, offset, zero_rate)
+    return phi.sum(axis=-1)
+
+
+def find_closed_turns(
+    slews: Slews,
+    rotvec: np.ndarray,
+    up_first: np.ndarray,
+    up_second: np.ndarray,
+    sigma_deg: float = TURN_CLOSURE_SIGMA_DEG,
+    exclude: np.ndarray | None = None,
+) -> ClosedTurns | None:
+    """The closed turns among ``slews``, or None.
+
+    rotvec: (S, 3) :func:`integrated_rotvec` at the prior, rad. up_first / up_second: (S, 3)
+    gravity directions of each slew's two windows. exclude: (S,) bool, slews not to consider
+    (e.g. those with a commanded rotation). ``sigma_deg`` <= 0 turns the assumption off.
+    """
+    if sigma_deg <= 0 or len(slews) == 0:
+        return None
+    u1 = up_first / np.linalg.norm(up_first, axis=1, keepdims=True)
+    u2 = up_second / np.linalg.norm(up_second, axis=1, keepdims=True)
+    tilt = np.arccos(np.clip(np.sum(u1 * u2, axis=1), -1.0, 1.0))
+    about = np.sum(rotvec * u1, axis=1)  # signed angle about the vertical, rad
+    off = np.linalg.norm(rotvec - about[:, None] * u1, axis=1)
+    k = np.round(about / (2 * math.pi))
+    ok = (
+        (k != 0)
+        & (tilt < math.radians(CLOSED_TURN_TILT_DEG))
+        & (np.abs(about - 2 * math.pi * k) < math.radians(CLOSED_TURN_SLACK_DEG))
+        & (off < math.radians(CLOSED_TURN_OFF_AXIS_DEG))
+    )
+    if exclude is not None:
+        ok &= ~np.asarray(exclude, bool)
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return None
+    return ClosedTurns(
+        idx, k[idx].astype(np.int64), u1[idx], np.full(idx.size, math.radians(sigma_deg))
+    )
+
+
+def closure_residuals(
+    slews: Slews,
+    turns: ClosedTurns,
+    gain: np.ndarray,
+    A: np.ndarray,
+    offset: np.ndarray,
+    earth_rate: bool,
+    zero_rate: np.ndarray | None = None,
+) -> np.ndarray:
+    """Closed-turn residuals (P, C), rad: the integrated rotation's component about the
+    vertical after k whole turns (the heading misclosure), Earth's turn over the slew taken out
+    as in :func:`rotation_residuals` with ``earth_rate``."""
+    pick = turns.index
+    sub = slews.subset(pick)
+    g = gain if gain.shape[1] == 1 else gain[:, pick]
+    o = offset if offset.shape[1] == 1 else offset[:, pick]
+    z = None if zero_rate is None else np.asarray(zero_rate)[pick]
+    q, rest = slew_rotations(sub, g, A, o, z)
+    if earth_rate:
+        conj = quat_from_rotvec(rest * sub.duration_s[None, :, None])
+        conj = conj * np.array([1.0, -1.0, -1.0, -1.0])
+        q = quat_multiply(conj, q)
+    q = q * np.sign(q[..., :1] + 1e-300)  # whole turns: q = -1 is no rotation
+    return np.einsum("psi,si->ps", 2.0 * q[..., 1:], turns.axis)
+
+
+def closure_sigma(
+    slews: Slews, turns: ClosedTurns, gyro_std_in: np.ndarray, earth_rate: bool
+) -> np.ndarray:
+    """1-sigma (C,) of the closed-turn residuals, rad: the heading closure, the gyro's angle
+    random walk over the slew (per-sample std in deg/h, (M, 3)) and, when Earth's turn is left
+    in, its vertical part at most Omega T."""
+    pick = turns.index
+    i, j = slews.first[pick], slews.second[pick]
+    dt, n, T = slews.period_s, slews.samples[pick], slews.duration_s[pick]
+    s_rate = 0.5 * (np.mean(gyro_std_in[i] ** 2, axis=1) + np.mean(gyro_std_in[j] ** 2, axis=1))
+    var = (DEG_H_TO_RAD_S * dt) ** 2 * s_rate * n + turns.sigma_rad**2
+    if not earth_rate:
+        var = var + (OMEGA_IE_RAD_S * T) ** 2 / 3.0
+    return np.sqrt(var)

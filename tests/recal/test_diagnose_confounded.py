@@ -16,6 +16,7 @@ from recal.calibrate import CalibrationOptions, calibrate
 from recal.coefficients import CoefficientSet
 from recal.diagnose import CORE_SHIFT_SIGMA, _fit, diagnose, effects_check, heldout_chi2_red
 from recal.plugins import hidden_plugin
+from recal.report import diagnosis_html
 from recal.simulate import TemperatureSpec, design_orientations, simulate_positions
 from recal.terms import catalogue_terms
 from service.cli.diagnose import format_diagnosis
@@ -88,6 +89,10 @@ def test_a_large_core_shift_is_not_confirmed_in_the_candidate_verdict_and_json(m
     assert base["heldout_chi2_red"] > 3 and step["heldout_chi2_red"] < 1.5
     assert "(held out " in text and c["heldout_chi2_red"] == pytest.approx(
         step["heldout_chi2_red"], rel=1e-6
+    )
+    page = diagnosis_html(d)
+    assert (
+        "<b>Not confirmed</b>: see the verdict" in page and "held out (leave-one-position" in page
     )
 
 

@@ -185,7 +185,7 @@ def test_a_gyro_blind_to_earth_rate_is_calibrated_from_the_slews():
     noisy = NoiseSpec(arw_deg_rt_h=1.0, vrw_ug_rt_hz=50.0)
     r, err, sd, status = _fit(1, slews=True, noise=noisy)
     assert r.problem.sensors == ("gyro", "accel") and not r.problem.slew_earth_rate
-    assert any("calibrated from 23 slews" in n for n in r.notes)
+    assert any("still windows and 23 slews in one fit" in n for n in r.notes)
     gyro = np.array([n.startswith("gyro.") for n in r.layout.names])
     assert (status[gyro] == "estimated").all()
     scale = [i for i, n in enumerate(r.layout.names) if n.startswith("gyro.scale")]
