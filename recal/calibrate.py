@@ -156,6 +156,9 @@ class CalibrationResult:
                 "indicator_eq14_after": float(ind_after[n][0]),
                 "per_position": [float(v) for v in after[n][0]],
             }
+            if n in ("gyro_norm", "dot") and self.problem.gyro_rows is not None:
+                # accelerometer-only windows (gyro not still) are left out: name the rows
+                out[n]["rows"] = [int(i) for i in self.problem.gyro_rows]
             if n == "rotation":
                 out[n]["per_rotation"] = out[n].pop("per_position")
                 out[n]["rotations"] = self.problem.n_of(n) // 3

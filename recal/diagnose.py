@@ -540,10 +540,11 @@ def _rung(label: str, effect: str, fit: Fit, previous: Fit | None, n: int) -> di
     return {
         "model": label,
         "effect": effect,
-        "chi2_red": _finite(fit.rss / max(n - fit.rank, 1)),
+        # no redundancy: the residual is zero by construction, so neither figure means anything
+        "chi2_red": _finite(fit.rss / (n - fit.rank)) if n > fit.rank else None,
         "rms_over_floor": ratio,
         "delta_bic": None if step is None else _finite(step),
-        "heldout_chi2_red": _finite(heldout_chi2_red(fit)),
+        "heldout_chi2_red": _finite(heldout_chi2_red(fit)) if n > fit.rank else None,
         "directions": fit.rank,
     }
 
@@ -554,6 +555,15 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
     d.residual_correlations = _residual_correlations(final, d.baseline)
     d.worst_positions, d.worst_slews = worst_windows(final)
     added = ", ".join(d.suggested_effects)
+    if n <= final.rank:  # the fit zeroes every residual: "at the floor" would say nothing
+        d.verdict = (
+            f"exactly determined: {n} invariant equations for {final.rank} observable "
+            "directions, so the residual is zero whatever the model and cannot show whether an "
+            "effect is missing; add positions (or orientations) to check the model"
+        )
+        if not d.suggested_effects:  # chi2_red of a fit with no redundancy is undefined
+            d.chi2_red = d.final_chi2_red = float("nan")
+        return
     if not final.problem.noise_known:
         d.verdict = (
             f"suggested: {added} (chi2_red {d.chi2_red:.3g} -> {d.final_chi2_red:.3g})"
@@ -618,7 +628,9 @@ def _residual_correlations(fit: Fit, base: CalibrationResult) -> dict[str, float
         if inv not in ("gyro_norm", "accel_norm", "dot"):
             continue
         w = v[0] / fit.problem.sigma[inv]
+        rows = fit.problem.rows_of(inv)
         for k, x in drivers.items():
+            x = x[rows]
             if np.ptp(x) > 0 and np.ptp(w) > 0:
                 out[f"{inv} vs {k}"] = float(np.corrcoef(w, x)[0, 1])
     return dict(sorted(out.items(), key=lambda kv: -abs(kv[1])))
@@ -711,7 +723,7 @@ def noise_correlation(problem: Problem, theta: np.ndarray) -> np.ndarray:
     names = problem.invariant_names
     if "dot" not in names or not problem.noise_known:
         return C
-    pos, M = problem.positions, problem.M
+    pos = problem.positions
     x = problem.physical(theta[None])
     w, f = x["gyro"][0], x["accel"][0]
     sl = problem.layout.term_slices()
@@ -724,11 +736,15 @@ def noise_correlation(problem: Problem, theta: np.ndarray) -> np.ndarray:
     var_d = np.sum((f * sg) ** 2 + (w * sa) ** 2, axis=1)
     rho_g = np.sum(uw * f * sg**2, axis=1) / np.sqrt(var_g * var_d)
     rho_a = np.sum(uf * w * sa**2, axis=1) / np.sqrt(var_a * var_d)
-    start = {n: M * i for i, n in enumerate(names)}  # norms and dot come first, M each
-    m = np.arange(M)
+    # norms and dot come first; the gyro's (and the dot) leave out accelerometer-only windows
+    start = dict(zip(names, np.cumsum([0, *(problem.n_of(n) for n in names[:-1])]), strict=True))
+    dot_rows = problem.rows_of("dot")
     for inv, rho in (("gyro_norm", rho_g), ("accel_norm", rho_a)):
-        i, j = start[inv] + m, start["dot"] + m
-        C[i, j] = C[j, i] = rho
+        if inv not in start:
+            continue
+        m = np.searchsorted(problem.rows_of(inv), dot_rows)  # each dot row in inv's rows
+        i, j = start[inv] + m, start["dot"] + np.arange(dot_rows.shape[0])
+        C[i, j] = C[j, i] = rho[dot_rows]
     return C
 
 

@@ -28,15 +28,9 @@ from recal.model import Model, ParameterLayout
 from recal.positions import GYRO_STD_COLUMNS, Positions
 from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 from recal.slews import (
-    TURN_CLOSURE_SIGMA_DEG,
-    ClosedTurns,
     KnownRotations,
     Slews,
-    closure_residuals,
-    closure_sigma,
-    find_closed_turns,
     horizontal_basis,
-    integrated_rotvec,
     rotation_residuals,
     rotation_sigma,
     slew_residuals,
@@ -48,7 +42,7 @@ from recal.terms import Term
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
 #: re-estimated from the residuals. Observability is never decided on it (only structural rank).
 PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01, "slew": 1e-3,
-                     "rotation": 1e-3, "closure": 1e-3}  # fmt: skip
+                     "rotation": 1e-3}  # fmt: skip
 #: Positions.noise_source label -> sigma_source label of the invariants it feeds.
 COLUMN_SOURCES = {
     "sem columns": "sem columns",
@@ -62,10 +56,11 @@ INVARIANT_SENSORS = {
     "dot": ("gyro", "accel"),
     "slew": ("gyro", "accel"),
     "rotation": ("gyro",),
-    "closure": ("gyro", "accel"),
 }
+#: Invariants that need a still gyro: rows of accelerometer-only windows are left out of them.
+GYRO_STATIC = frozenset({"gyro_norm", "dot"})
 #: Invariants whose residual is linear in the estimated inputs (no squared form in eq. 14).
-_LINEAR = frozenset({"dot", "slew", "rotation", "closure"})
+_LINEAR = frozenset({"dot", "slew", "rotation"})
 
 
 @dataclass(frozen=True)
@@ -106,8 +101,6 @@ class Problem:
     known_rotations: KnownRotations | None = None
 
     # ---- construction -------------------------------------------------------------------
-    closed_turns: ClosedTurns | None = None
-    slew_excess_rad: float = 0.0
     @classmethod
     def build(
         cls,
@@ -122,21 +115,21 @@ class Problem:
         known_rotations: KnownRotations | None = None,
     ) -> Problem:
         """Check the columns the models need, build the context and the noise floors.
-        turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG,
-        slew_excess_rad: float = 0.0,
 
         ``theta_ref`` (the prior) is used to propagate the window noise to the invariants and
         to estimate the specific force seen by a gyro g-sensitivity term. ``slews`` add the slew
-        invariant when both triads are calibrated (they are ignored otherwise). Slews that are
-        closed turns at ``theta_ref`` (:func:`recal.slews.find_closed_turns`; none with a
-        commanded rotation) add the "closure" invariant, 1 residual each with the heading
-        closure ``turn_closure_sigma_deg`` (<= 0: no closed turns assumed). ``slew_excess_rad``
-        is added in quadrature to every slew residual's sigma (an unmodelled per-slew error).
+        invariant when both triads are calibrated (they are ignored otherwise).
         """
         sensors = [m.sensor for m in models]
         for s in sensors:
             if not getattr(positions, f"has_{s}"):
                 raise RecalInputError(f"{positions.source}: no {s}_x/y/z columns for --sensor {s}")
+        still = positions.columns.get("gyro_still")
+        if sensors == ["gyro"] and still is not None and not (still != 0).any():
+            raise RecalInputError(
+                f"{positions.source}: the gyro was still in no window (gyro_still 0 in every "
+                "row: a unit held by hand); calibrate it from the slews, with both triads"
+            )
         ctx: dict[str, np.ndarray] = {}
         needs = frozenset().union(*(m.needs for m in models))
         for col in ("temperature_c", "temperature_rate_c_per_h"):
@@ -187,14 +180,6 @@ class Problem:
             return self.model("accel").inverse(theta[None, sl], self.positions.accel, self.ctx)[0]
         acc = self.positions.accel  # nominal: unit-gravity direction from raw outputs
         return acc / np.linalg.norm(acc, axis=1, keepdims=True) * self.gravity_g
-            gain, A, offset = prob._gyro_parts(theta)
-            rv = integrated_rotvec(slews, gain, A, offset, prob._zero_rate)[0]
-            known = np.zeros(len(slews), bool)
-            if prob.known_rotations is not None:
-                known = np.isin(slews.first, prob.known_rotations.slew)
-            turns = find_closed_turns(slews, rv, f[slews.first], f[slews.second],
-                                      turn_closure_sigma_deg, known)  # fmt: skip
-            prob = replace(prob, closed_turns=turns, slew_excess_rad=float(slew_excess_rad))
 
     def with_sigma(self, sigma: Mapping[str, np.ndarray], source: Mapping[str, str]) -> Problem:
         return replace(self, sigma=dict(sigma), sigma_source=dict(source))
@@ -237,31 +222,48 @@ class Problem:
         names = [f"{s}_norm" for s in self.sensors]
         if self.use_dot and len(self.sensors) == 2:
             names.append("dot")
+        if self.gyro_rows is not None and self.gyro_rows.size == 0:  # no still gyro anywhere
+            names = [n for n in names if n not in GYRO_STATIC]
         if self.slews is not None:
             names.append("slew")
             if self.known_rotations is not None:
                 names.append("rotation")
         return tuple(names)
 
+    @cached_property
+    def gyro_rows(self) -> np.ndarray | None:
+        """Positions whose gyro was still (column ``gyro_still`` not 0), or None for all.
+
+        An accelerometer-only window (a pose held by hand: the gyro trembles) serves the accel
+        norm and stays a slew endpoint, but its gyro mean is no static reading: the gyro norm
+        and the dot product leave it out (docs/static.md, "Per-triad stillness").
+        """
+        col = self.positions.columns.get("gyro_still")
+        if col is None or (col != 0).all():
+            return None
+        return np.flatnonzero(col != 0)
+
+    def rows_of(self, name: str) -> np.ndarray:
+        """The position (row) of each residual of a per-position invariant."""
+        if name in GYRO_STATIC and self.gyro_rows is not None:
+            return self.gyro_rows
+        return np.arange(self.M)
+
     def n_of(self, name: str) -> int:
-        """Residuals of invariant ``name``: one per position, two per slew, three per known
-        rotation."""
+        """Residuals of invariant ``name``: one per position (the gyro norm and dot product:
+        per position whose gyro was still), two per slew, three per known rotation."""
         if name == "slew" and self.slews is not None:
             return 2 * len(self.slews)
         if name == "rotation" and self.known_rotations is not None:
             return 3 * len(self.known_rotations)
-        if name == "closure" and self.closed_turns is not None:
-            return len(self.closed_turns)
         return int(self.rows_of(name).shape[0])
-            if self.closed_turns is not None:
-                names.append("closure")
 
     def reference(self, name: str) -> float:
         if name == "gyro_norm":
             return OMEGA_IE_DEG_H
         if name == "accel_norm":
             return self.gravity_g
-        if name in ("slew", "rotation", "closure"):
+        if name in ("slew", "rotation"):
             return 0.0
         return dot_reference(self.latitude_deg, self.height_m)
 
@@ -302,9 +304,10 @@ class Problem:
             elif name == "rotation":
                 out[name] = self._rotation_values(theta)
             elif name == "dot":
-                out[name] = np.einsum("ipm,ipm->pm", x["gyro"], x["accel"])
+                rows = self.rows_of(name)
+                out[name] = np.einsum("ipm,ipm->pm", x["gyro"][..., rows], x["accel"][..., rows])
             else:
-                v = x[name.split("_")[0]]
+                v = x[name.split("_")[0]][..., self.rows_of(name)]
                 sq = np.einsum("ipm,ipm->pm", v, v)
                 out[name] = sq if squared else np.sqrt(sq)
         return out
@@ -330,8 +333,6 @@ class Problem:
     @cached_property
     def _zero_rate(self) -> np.ndarray | None:
         """A gyro blind to Earth rate: the output taken as zero rate over each slew, the mean of
-            elif name == "closure":
-                out[name] = self._closure_values(theta)
         its two windows (its bias wanders between windows; :func:`recal.slews.slew_rotations`)."""
         if self.slew_earth_rate or self.slews is None:
             return None
@@ -385,14 +386,6 @@ class Problem:
     def _floor(self) -> dict[str, float]:
         return self.indicator_floor()
 
-    def _closure_values(self, theta: np.ndarray) -> np.ndarray:
-        """Closed-turn residuals (P, C), rad (:func:`recal.slews.closure_residuals`)."""
-        assert self.slews is not None and self.closed_turns is not None
-        gain, A, offset = self._gyro_parts(theta)
-        return closure_residuals(
-            self.slews, self.closed_turns, gain, A, offset, self.slew_earth_rate, self._zero_rate
-        )
-
     def indicator_floor(self) -> dict[str, float]:
         """Expected eq. (14) value from window noise alone, per invariant."""
         out = {}
@@ -442,21 +435,18 @@ class Problem:
         out, source = {}, {}
         for n in self.invariant_names:
             needed = INVARIANT_SENSORS[n]
-            motion = ("slew", "rotation", "closure")
-            slew_sd = self._slew_sigma(x, sd_in, gains) if n in motion else None
+            slew_sd = self._slew_sigma(x, sd_in, gains) if n in ("slew", "rotation") else None
             if n == "rotation" and slew_sd is not None:
                 slew_sd = self._rotation_sigma(sd_in, gains)
-            if n == "closure" and slew_sd is not None:
-                assert self.slews is not None and self.closed_turns is not None
-                std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
-                slew_sd = closure_sigma(self.slews, self.closed_turns, std_in, self.slew_earth_rate)
-            if any(sd_in[s] is None for s in needed) or (n in motion and slew_sd is None):
+            if any(sd_in[s] is None for s in needed) or (
+                n in ("slew", "rotation") and slew_sd is None
+            ):
                 out[n] = np.full(self.n_of(n), PROVISIONAL_SIGMA[n])
                 source[n] = "provisional"
                 continue
             kinds = {kind[s] for s in needed}
             source[n] = kinds.pop() if len(kinds) == 1 else "sem and std columns"
-            if n in motion:
+            if n in ("slew", "rotation"):
                 out[n] = slew_sd
                 continue
             if n == "dot":
@@ -466,7 +456,7 @@ class Problem:
                 v = x[needed[0]]
                 u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
                 var = np.sum(u**2 * sd_in[needed[0]] ** 2, axis=1)
-            out[n] = np.sqrt(np.maximum(var, 1e-300))
+            out[n] = np.sqrt(np.maximum(var[self.rows_of(n)], 1e-300))
         return out, source
 
     def _rotation_sigma(
@@ -496,7 +486,7 @@ class Problem:
         i, j = self.slews.first, self.slews.second
         return slew_sigma(
             self.slews, std_in, sd_in["gyro"], sd_in["accel"], x["accel"][i], x["accel"][j],
-            self.slew_basis, self.slew_earth_rate, self.latitude_deg, self.slew_excess_rad,
+            self.slew_basis, self.slew_earth_rate, self.latitude_deg,
         )  # fmt: skip
 
     def at(self, theta: np.ndarray) -> Problem:

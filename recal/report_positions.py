@@ -41,6 +41,7 @@ _REASON_STYLE = {  # colour, hatch: told apart in print as well as on screen
     "invalid_status": ("#8e44ad", "x"),
     "sequence_gap": ("#c0392b", "\\"),
     "rotating": ("#2c3e50", "."),
+    "gyro_not_still": ("#16a085", "|"),  # kept for the accelerometer: drawn over its window
 }
 _AXIS_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c")
 _MAX_LABELLED_WINDOWS = 60  # more position numbers than this would overlap on the chart
@@ -203,7 +204,8 @@ def positions_html(
         rows.append(
             f"<tr><td>{i}</td><td>{w.start_s:.2f}</td><td>{w.end_s:.2f}</td>"
             f"<td>{w.duration_s:.2f}</td><td>{w.samples}</td><td>{w.frames_lost}</td>"
-            f"<td>{w.frames_invalid}</td><td>{temp}</td></tr>"
+            f"<td>{w.frames_invalid}</td><td>{temp}</td>"
+            f"<td>{'both' if w.gyro_still else 'accel only'}</td></tr>"
         )
     stretches = sorted(report.rejected_stretches)
     rej = [
@@ -227,11 +229,15 @@ def positions_html(
 (dashed red). Quiet runs, trimmed at both ends, become the static windows (shaded green,
 numbered as the rows of the positions CSV). Quiet stretches left out are marked by reason:
 too short, cut by invalid frames or a sequence gap, or rotating (mean gyro off the reference).
+A still stretch of the accelerometer in which the gyro never stays quiet long enough (a unit
+held by hand: tremor) is kept for the accelerometer only and marked "gyro not still" over its
+window; the gyro's static invariants leave it out.
 Bands: min to max over {envelope.frames_per_bucket} frame(s) per point; lines: the mean.</p>
 <figure data-windows="{n}" data-rejected="{len(stretches)}">{chart}</figure>
 <h2>Static windows ({n})</h2>
 <table><tr><th>position</th><th>start [s]</th><th>end [s]</th><th>duration [s]</th>
-<th>samples</th><th>frames lost</th><th>frames invalid</th><th>temperature [degC]</th></tr>
+<th>samples</th><th>frames lost</th><th>frames invalid</th><th>temperature [degC]</th>
+<th>still triads</th></tr>
 {"".join(rows)}</table>
 <h2>Rejected quiet stretches ({sum(report.rejected.values())})</h2>
 {rejected_part}

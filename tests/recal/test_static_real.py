@@ -84,6 +84,28 @@ def test_xsens_flag_free_finds_the_38_poses(xsens):
     assert np.median(mvar) == pytest.approx(floor.accel, rel=0.3)
 
 
+def test_xsens_per_triad_stillness_keeps_the_38_windows(xsens):
+    """A unit on a table: per-triad stillness adds no window, drops none, and the report
+    counts the 38 poses as seen and used with nothing rejected."""
+    floor = estimate_noise_floor(*xsens)
+    res = detect_static(*xsens, config=DetectorConfig(noise_floor=floor))
+    old = detect_static(*xsens, config=DetectorConfig(noise_floor=floor, accel_only_windows=False))
+    assert [(w.start_index, w.end_index) for w in res.windows] == [
+        (w.start_index, w.end_index) for w in old.windows
+    ]
+    assert len(res.windows) == 38 and all(w.gyro_still for w in res.windows)
+    rep = res.report
+    assert rep.still_stretches == rep.still_stretches_used == 38
+    assert sum(rep.rejected.values()) == 0 and rep.rejected_stretches == []
+    lines = rep.summary_lines()
+    assert "windows: 38 kept; rejected:" in lines[2]
+    assert (
+        lines[3]
+        == "poses: 38 still stretches of the accelerometer seen, 38 used, 0 without any window"
+    )
+    assert len(lines) == 4  # no rejected stretch to list
+
+
 def test_noise_floor_incremental_equals_bulk(xsens):
     t, g, a = xsens
     bulk = estimate_noise_floor(t, g, a)
