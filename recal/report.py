@@ -193,7 +193,8 @@ def diagnosis_html(d: Diagnosis, title: str = "recal diagnose") -> str:
         f"{doc['chi2_red_with_suggested']:.3g}."
         + ("" if d.trustworthy else " <b>Not confirmed</b>: see the verdict.")
         if d.suggested_effects
-        else f"No candidate effect is significant; chi2_red {doc['chi2_red']:.3g}."
+        else "No candidate effect is significant; chi2_red "
+        + ("n/a (no redundancy)." if doc["chi2_red"] is None else f"{doc['chi2_red']:.3g}.")
     )
     verdict_cls = "color:#c0392b" if d.model_fails else ""
     return html_page(

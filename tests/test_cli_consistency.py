@@ -160,3 +160,19 @@ def test_a_disagreement_note_names_the_effect_that_explains_more_or_none():
     assert top.explained_better_by == ""
     assert "a misfit no candidate explains (see the verdict)" in top.disagreement
     assert "first ranked" not in format_diagnosis(d)
+
+
+def test_diagnose_does_not_call_an_exactly_determined_fit_at_the_noise_floor():
+    """Six positions, one triad: six equations for six directions, so the residual is zero by
+    construction; calibrate says it cannot check the fit, and so must diagnose."""
+    from recal.report import diagnosis_html
+
+    pos = simulate_positions(CoefficientSet.seed_truth(), "random", 6, 45.0, seed=1,
+                             sensors=("accel",))  # fmt: skip
+    assert any("exactly determined" in n for n in calibrate(pos, CalibrationOptions()).notes)
+    d = diagnose(pos, CalibrationOptions(latitude_deg=45.0))
+    assert d.verdict.startswith("exactly determined") and "noise floor" not in d.verdict
+    doc = d.to_json_dict()
+    assert doc["chi2_red"] is None and doc["ladder"][0]["chi2_red"] is None
+    assert not d.model_fails and "exactly determined" in format_diagnosis(d)
+    assert "chi2_red n/a (no redundancy)" in diagnosis_html(d)
