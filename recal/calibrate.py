@@ -39,19 +39,20 @@ from recal.observability import (
     ROTATION_REASON,
     ObservabilityReport,
     analyze,
+    jacobian,
 )
 from recal.phases import paper_phases, whitened_phase
 from recal.plugins import bind_context, plugin_file, values_by_term
 from recal.positions import Positions
 from recal.problem import Problem
 from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
-from recal.slews import DEG_H_TO_RAD_S, KnownRotations, Slews
+from recal.slews import DEG_H_TO_RAD_S, TURN_CLOSURE_SIGMA_DEG, KnownRotations, Slews
 from recal.swarm import SwarmConfig
 from recal.terms import Term, catalogue_terms
 
 METHODS = ("lm",) + SWARM_METHODS
 UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
-         "rotation": "rad"}  # fmt: skip
+         "rotation": "rad", "closure": "rad"}  # fmt: skip
 #: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
 #: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
 #: so the FOG's 0.05 deg/h would call every bias such a gyro's windows can give "not seen".
@@ -88,6 +89,8 @@ class CalibrationOptions:
     t0_c: float = 25.0
     slews: Slews | None = None  # gyro increments between the windows (recal.slews), or None
     known_rotations: KnownRotations | None = None  # commanded rotations of some slews
+    #: heading closure of a closed turn, deg (recal.slews.find_closed_turns); <= 0: none assumed
+    turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG
     #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
     #: a missing effect can drag the baseline fit there, and the candidates must still be tried
     refuse_at_solution: bool = True
@@ -162,6 +165,16 @@ class CalibrationResult:
             if n == "rotation":
                 out[n]["per_rotation"] = out[n].pop("per_position")
                 out[n]["rotations"] = self.problem.n_of(n) // 3
+                if noise:
+                    w = after[n][0] / self.problem.sigma[n]
+                    out[n]["chi2_red"] = float(np.mean(w * w))
+            if n == "closure":
+                turns = self.problem.closed_turns
+                assert turns is not None
+                out[n]["per_turn"] = out[n].pop("per_position")
+                out[n]["slews"] = [int(i) for i in turns.index]
+                out[n]["turns"] = [int(k) for k in turns.turns]
+                out[n]["closure_sigma_deg"] = float(np.degrees(turns.sigma_rad[0]))
                 if noise:
                     w = after[n][0] / self.problem.sigma[n]
                     out[n]["chi2_red"] = float(np.mean(w * w))
@@ -607,27 +620,118 @@ class _SetUp(NamedTuple):
     typical: np.ndarray  # typical change per parameter, (D,)
 
 
+def _slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: float) -> bool:
+    """Whether Earth's turn over a slew is better taken out with the calibrated rest rate of its
+    first window than left in the slew's noise budget: the window-mean gyro noise (deg/h, at the
+    prior scale ``scale`` output/(deg/h), else the output noise over the median output norm in
+    units of Earth rate) against the horizontal Earth rate it would remove (variances per
+    component: sem^2 against (Omega cos(lat))^2 / 2, :func:`recal.slews.slew_sigma`). Decided
+    by the two error budgets, not by a contrast threshold; without noise columns the rest rate
+    is used (a gyro without noise columns is judged on its residuals later)."""
+    noise = positions.std_of_mean("gyro")
+    if noise is None:
+        return True
+    sem = np.median(noise, axis=0)
+    if scale is not None:
+        sem_dph = sem / np.maximum(np.abs(np.asarray(scale, float)), 1e-300)
+    else:  # output units: the prior's common scale is the median norm over Earth rate
+        gain = np.median(np.linalg.norm(positions.gyro, axis=1)) / OMEGA_IE_DEG_H
+        sem_dph = sem / max(gain, 1e-300)
+    horizontal = OMEGA_IE_DEG_H * np.cos(np.radians(lat))
+    return bool(np.mean(sem_dph**2) < horizontal**2 / 2.0)
+
+
+#: Slews whose reduced chi2 exceeds 1 by this many of its standard errors (sqrt(2 / n)) carry an
+#: unmodelled per-slew error, estimated from their misfit (:func:`slew_excess`).
+SLEW_EXCESS_SIGNIFICANCE = 3.0
+
+
+def slew_excess(problem: Problem, theta0: np.ndarray, typical: np.ndarray) -> tuple[float, float]:
+    """(excess, chi2_red of the slews before it): the unmodelled error per slew residual, rad,
+    that makes the slews' chi2_red 1 at the fit, by the method of moments, iterated with the fit
+    (3 rounds at most), or 0 when the slews fit to their window noise within
+    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors.
+
+    Why: on a real hand-turned MEMS session (imucal's Ferraris example) the face flips misfit by
+    3-30 mrad against a noise floor of 0.3 mrad whatever the linear gyro model, while the closed
+    turns fit; weighted by the window noise alone the flips would decide the scale factors and
+    outweigh the turns 10:1. The excess gives each slew the weight its scatter allows."""
+    if problem.slews is None or not problem.noise_known_for("slew"):
+        return 0.0, float("nan")
+    n = problem.n_of("slew")
+    base = problem.sigma["slew"]
+    theta, excess, chi2_first = theta0, 0.0, float("nan")
+    prob = problem
+    # the directions the window noise lets the slews see, kept through the rounds (judged
+    # again on the inflated noise, fewer are seen, the misfit grows and the excess runs away)
+    T = typical[:, None] * analyze(prob, theta0, typical).basis
+    for _ in range(4):
+        lm = solve_lm(prob, theta0, T)
+        theta = lm.theta
+        r = prob.raw_residuals(theta[None])["slew"][0]
+        chi2 = float(np.mean((r / np.sqrt(base**2 + excess**2)) ** 2))
+        if np.isnan(chi2_first):
+            chi2_first = chi2
+            if chi2 < 1.0 + SLEW_EXCESS_SIGNIFICANCE * np.sqrt(2.0 / n):
+                return 0.0, chi2_first
+        new = float(np.sqrt(max(np.mean(r**2 - base**2), 0.0)))
+        if abs(new - excess) <= 0.1 * max(new, 1e-300):
+            excess = new
+            break
+        excess = new
+        prob = replace(prob, slew_excess_rad=excess).at(theta0)
+    return excess, chi2_first
+
+
+def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
+    """What the static windows (gyro norm, dot product: Earth rate) and the motion (slews,
+    closed turns) each tell about the gyro scale factors: the share of each in the Fisher
+    information of every gyro.scale coefficient at ``theta`` (whitened residuals)."""
+    sl = problem.layout.term_slices().get("gyro.scale")
+    if sl is None or problem.slews is None:
+        return None
+    idx = np.arange(problem.layout.size)[sl]
+    J = jacobian(problem, theta, np.diag(typical)[idx])  # (R, 3)
+    rows, start = {}, 0
+    for n in problem.invariant_names:
+        rows[n] = slice(start, start + problem.n_of(n))
+        start += problem.n_of(n)
+    static = sum(np.sum(J[rows[n]] ** 2, axis=0) for n in ("gyro_norm", "dot") if n in rows)
+    motion = sum(np.sum(J[rows[n]] ** 2, axis=0) for n in ("slew", "closure", "rotation")
+                 if n in rows)  # fmt: skip
+    share = np.asarray(static) / np.maximum(np.asarray(static) + np.asarray(motion), 1e-300)
+    axes = "/".join(f"{100 * v:.3g}" for v in share)
+    return (
+        f"gyro scale information (x/y/z) from Earth rate in the still windows: {axes} %; the "
+        "rest from the slews (the two enter one fit, each weighted by its own noise)"
+    )
+
+
 def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
-    """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes."""
+    """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes.
+
+    With slews and both triads the gyro is calibrated from the static invariants (Earth rate)
+    and the slews together, each weighted by its own noise: a MEMS gyro's Earth-rate
+    information then carries little weight without any threshold deciding. Earth's turn over
+    a slew is taken out or left in the noise by comparing the two error budgets
+    (:func:`_slews_see_earth_rate`). Without slews a gyro whose outputs do not show Earth rate
+    (:func:`_earth_rate_invisible`) is left out by default.
+    """
     sensors = _resolve_sensors(positions, opt.sensor)
     notes: list[str] = []
     slews = _usable_slews(positions, opt, notes) if positions.has_gyro else None
     prior_scale = opt.prior.values.get("gyro.scale") if opt.prior is not None else None
     problem_gyro = _earth_rate_invisible(positions, prior_scale) if "gyro" in sensors else None
-    from_slews = bool(problem_gyro) and slews is not None and positions.has_accel
-    if from_slews and opt.sensor == "gyro":
-        raise RecalInputError(
-            problem_gyro + "; the slews could calibrate it with the accelerometers: leave "
-            "--sensor out or use --sensor both"
-        )
-    if from_slews:
+    with_slews = slews is not None and positions.has_accel and "gyro" in sensors
+    if with_slews and opt.sensor == "gyro":
+        if problem_gyro:
+            raise RecalInputError(
+                problem_gyro + "; the slews could calibrate it with the accelerometers: leave "
+                "--sensor out or use --sensor both"
+            )
+        with_slews = False
+    if with_slews:
         sensors = ("gyro", "accel")
-        notes.append(
-            f"gyro calibrated from {len(slews)} slews (scale and misalignment; bias from the "
-            f"still windows): Earth rate is not visible ({problem_gyro.split(': Earth')[0]}), "
-            f"so its bias's typical change is taken as the larger of "
-            f"{SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h and 1000 ppm of the bias"
-        )
     elif problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
         sensors = ("accel",)  # the default calibrates what the data can show
         notes.append(f"gyro not calibrated: {problem_gyro}")
@@ -648,29 +752,88 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     models = bind_context(models, positions, values_by_term(layout, theta0), opt.latitude_deg,
                           opt.height_m, with_slews=slews is not None)  # fmt: skip
     layout = ParameterLayout(models)
+    excess, earth_rate, blind = 0.0, True, False
 
     def build(theta: np.ndarray) -> Problem:
-        if from_slews:  # the bias's typical change for a gyro blind to Earth rate
+        if blind:  # the bias's typical change for a gyro blind to Earth rate
             nonlocal models, layout
             models = _slew_gyro_models(models, layout, theta)
             layout = ParameterLayout(models)
         return Problem.build(
             positions, models, opt.latitude_deg, opt.height_m, theta,
-            slews=slews, slew_earth_rate=not from_slews, known_rotations=opt.known_rotations,
+            slews=slews, slew_earth_rate=earth_rate, known_rotations=opt.known_rotations,
+            turn_closure_sigma_deg=opt.turn_closure_sigma_deg, slew_excess_rad=excess,
         )  # fmt: skip
 
+    if slews is not None:
+        # Earth's turn over the slews: taken out where a window mean measures Earth rate better
+        # than leaving it in (a FOG), else left in with the zero rate from the two windows (a
+        # MEMS gyro). The gyro's scale for that judgement: the prior's, else the slews' own
+        # (a MEMS gyro's output norm at rest is its bias, not Earth rate)
+        earth_rate = False
+        from_slews = slew_prior(build(theta0), theta0)
+        scale = (
+            prior_scale
+            if prior_scale is not None
+            else from_slews[layout.term_slices()["gyro.scale"]]
+        )
+        # a gyro whose window means do not follow Earth rate (bias wander, problem_gyro) is
+        # treated as blind to it even when its white noise alone would allow it
+        earth_rate = not problem_gyro and _slews_see_earth_rate(positions, scale, opt.latitude_deg)
+        blind = not earth_rate
+        if blind:
+            notes.append(
+                f"gyro calibrated from the still windows and {len(slews)} slews in one fit: "
+                "Earth rate is below the window-mean gyro noise, so Earth's turn over each slew "
+                "is left in its noise, the zero rate over a slew is the mean output of its two "
+                "windows, and the bias's typical change is taken as the larger of "
+                f"{SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h and 1000 ppm of the bias"
+            )
+            if opt.prior is None:
+                theta0 = from_slews
     problem = build(theta0)
-    if from_slews and opt.prior is None:
-        theta0 = slew_prior(problem, theta0)
-        problem = build(theta0)
+    typical = layout.typical(theta0)
     if slews is not None:
         notes.append(
             f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
             f"included; {np.median(slews.duration_s):.3g} s median)"
         )
-    typical = layout.typical(theta0)
+        turns = problem.closed_turns
+        if turns is not None:
+            notes.append(
+                f"{len(turns)} closed turn(s) found and assumed (slews "
+                f"{', '.join(str(int(i)) for i in turns.index)}: gravity returns to where it "
+                f"was while the gyro turns {', '.join(f'{int(k):+d}' for k in turns.turns)} "
+                f"x 360 deg about the vertical): each taken as exactly whole turns, heading "
+                f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (option turn_closure_sigma_deg)"
+            )
+        excess, chi2_slews = slew_excess(problem, theta0, typical)
+        if excess > 0:
+            plain, problem = problem, build(theta0)
+            if (
+                problem.noise_known
+                and analyze(problem, theta0, typical).verdict == "insufficient"
+                and analyze(plain, theta0, typical).verdict != "insufficient"
+            ):
+                notes.append(
+                    f"the slews misfit beyond their window noise (slew chi2_red "
+                    f"{chi2_slews:.3g}); an unmodelled error of {excess * 1e3:.3g} mrad per "
+                    "slew residual would leave scale or bias unseen, so they keep the window "
+                    "noise as their weight and the misfit scales the 1-sigma instead"
+                )
+                excess, problem = 0.0, plain
+        if excess > 0:
+            notes.append(
+                f"the slews misfit beyond their window noise (slew chi2_red {chi2_slews:.3g} "
+                f"at the first fit): an unmodelled error of {excess * 1e3:.3g} mrad per slew "
+                "residual, estimated from their misfit, is added to their noise so each slew "
+                "carries the weight its scatter allows (recal diagnose lists the worst slews)"
+            )
+        shares = _information_shares(problem, theta0, typical)
+        if shares:
+            notes.append(shares)
     prior_source = describe_prior(positions, layout, theta0, opt.latitude_deg, opt.height_m,
-                                  opt.prior, gyro_from_slews=from_slews and opt.prior is None)  # fmt: skip
+                                  opt.prior, gyro_from_slews=blind and opt.prior is None)  # fmt: skip
     return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical)
 
 

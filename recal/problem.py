@@ -28,9 +28,15 @@ from recal.model import Model, ParameterLayout
 from recal.positions import GYRO_STD_COLUMNS, Positions
 from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 from recal.slews import (
+    TURN_CLOSURE_SIGMA_DEG,
+    ClosedTurns,
     KnownRotations,
     Slews,
+    closure_residuals,
+    closure_sigma,
+    find_closed_turns,
     horizontal_basis,
+    integrated_rotvec,
     rotation_residuals,
     rotation_sigma,
     slew_residuals,
@@ -42,7 +48,7 @@ from recal.terms import Term
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
 #: re-estimated from the residuals. Observability is never decided on it (only structural rank).
 PROVISIONAL_SIGMA = {"gyro_norm": 0.01, "accel_norm": 1e-5, "dot": 0.01, "slew": 1e-3,
-                     "rotation": 1e-3}  # fmt: skip
+                     "rotation": 1e-3, "closure": 1e-3}  # fmt: skip
 #: Positions.noise_source label -> sigma_source label of the invariants it feeds.
 COLUMN_SOURCES = {
     "sem columns": "sem columns",
@@ -56,11 +62,12 @@ INVARIANT_SENSORS = {
     "dot": ("gyro", "accel"),
     "slew": ("gyro", "accel"),
     "rotation": ("gyro",),
+    "closure": ("gyro", "accel"),
 }
 #: Invariants that need a still gyro: rows of accelerometer-only windows are left out of them.
 GYRO_STATIC = frozenset({"gyro_norm", "dot"})
 #: Invariants whose residual is linear in the estimated inputs (no squared form in eq. 14).
-_LINEAR = frozenset({"dot", "slew", "rotation"})
+_LINEAR = frozenset({"dot", "slew", "rotation", "closure"})
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,8 @@ class Problem:
     slew_earth_rate: bool = True
     slew_basis: np.ndarray | None = None
     known_rotations: KnownRotations | None = None
+    closed_turns: ClosedTurns | None = None
+    slew_excess_rad: float = 0.0
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -113,12 +122,18 @@ class Problem:
         slews: Slews | None = None,
         slew_earth_rate: bool = True,
         known_rotations: KnownRotations | None = None,
+        turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG,
+        slew_excess_rad: float = 0.0,
     ) -> Problem:
         """Check the columns the models need, build the context and the noise floors.
 
         ``theta_ref`` (the prior) is used to propagate the window noise to the invariants and
         to estimate the specific force seen by a gyro g-sensitivity term. ``slews`` add the slew
-        invariant when both triads are calibrated (they are ignored otherwise).
+        invariant when both triads are calibrated (they are ignored otherwise). Slews that are
+        closed turns at ``theta_ref`` (:func:`recal.slews.find_closed_turns`; none with a
+        commanded rotation) add the "closure" invariant, 1 residual each with the heading
+        closure ``turn_closure_sigma_deg`` (<= 0: no closed turns assumed). ``slew_excess_rad``
+        is added in quadrature to every slew residual's sigma (an unmodelled per-slew error).
         """
         sensors = [m.sensor for m in models]
         for s in sensors:
@@ -172,6 +187,14 @@ class Problem:
                     kr = KnownRotations(known_rotations.slew[on], known_rotations.rotvec[on],
                                         known_rotations.sigma_rad[on])  # fmt: skip
                     prob = replace(prob, known_rotations=kr)
+            gain, A, offset = prob._gyro_parts(theta)
+            rv = integrated_rotvec(slews, gain, A, offset, prob._zero_rate)[0]
+            known = np.zeros(len(slews), bool)
+            if prob.known_rotations is not None:
+                known = np.isin(slews.first, prob.known_rotations.slew)
+            turns = find_closed_turns(slews, rv, f[slews.first], f[slews.second],
+                                      turn_closure_sigma_deg, known)  # fmt: skip
+            prob = replace(prob, closed_turns=turns, slew_excess_rad=float(slew_excess_rad))
         return prob.with_sigma(*prob.propagated_sigma(theta))
 
     def _specific_force(self, theta: np.ndarray) -> np.ndarray:
@@ -228,6 +251,8 @@ class Problem:
             names.append("slew")
             if self.known_rotations is not None:
                 names.append("rotation")
+            if self.closed_turns is not None:
+                names.append("closure")
         return tuple(names)
 
     @cached_property
@@ -256,6 +281,8 @@ class Problem:
             return 2 * len(self.slews)
         if name == "rotation" and self.known_rotations is not None:
             return 3 * len(self.known_rotations)
+        if name == "closure" and self.closed_turns is not None:
+            return len(self.closed_turns)
         return int(self.rows_of(name).shape[0])
 
     def reference(self, name: str) -> float:
@@ -263,7 +290,7 @@ class Problem:
             return OMEGA_IE_DEG_H
         if name == "accel_norm":
             return self.gravity_g
-        if name in ("slew", "rotation"):
+        if name in ("slew", "rotation", "closure"):
             return 0.0
         return dot_reference(self.latitude_deg, self.height_m)
 
@@ -303,6 +330,8 @@ class Problem:
                 out[name] = self._slew_values(theta, x)
             elif name == "rotation":
                 out[name] = self._rotation_values(theta)
+            elif name == "closure":
+                out[name] = self._closure_values(theta)
             elif name == "dot":
                 rows = self.rows_of(name)
                 out[name] = np.einsum("ipm,ipm->pm", x["gyro"][..., rows], x["accel"][..., rows])
@@ -355,6 +384,14 @@ class Problem:
             self.slews, self.known_rotations, gain, A, offset, self.slew_earth_rate,
             self._zero_rate,
         )  # fmt: skip
+
+    def _closure_values(self, theta: np.ndarray) -> np.ndarray:
+        """Closed-turn residuals (P, C), rad (:func:`recal.slews.closure_residuals`)."""
+        assert self.slews is not None and self.closed_turns is not None
+        gain, A, offset = self._gyro_parts(theta)
+        return closure_residuals(
+            self.slews, self.closed_turns, gain, A, offset, self.slew_earth_rate, self._zero_rate
+        )
 
     def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units); the
@@ -435,18 +472,21 @@ class Problem:
         out, source = {}, {}
         for n in self.invariant_names:
             needed = INVARIANT_SENSORS[n]
-            slew_sd = self._slew_sigma(x, sd_in, gains) if n in ("slew", "rotation") else None
+            motion = ("slew", "rotation", "closure")
+            slew_sd = self._slew_sigma(x, sd_in, gains) if n in motion else None
             if n == "rotation" and slew_sd is not None:
                 slew_sd = self._rotation_sigma(sd_in, gains)
-            if any(sd_in[s] is None for s in needed) or (
-                n in ("slew", "rotation") and slew_sd is None
-            ):
+            if n == "closure" and slew_sd is not None:
+                assert self.slews is not None and self.closed_turns is not None
+                std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
+                slew_sd = closure_sigma(self.slews, self.closed_turns, std_in, self.slew_earth_rate)
+            if any(sd_in[s] is None for s in needed) or (n in motion and slew_sd is None):
                 out[n] = np.full(self.n_of(n), PROVISIONAL_SIGMA[n])
                 source[n] = "provisional"
                 continue
             kinds = {kind[s] for s in needed}
             source[n] = kinds.pop() if len(kinds) == 1 else "sem and std columns"
-            if n in ("slew", "rotation"):
+            if n in motion:
                 out[n] = slew_sd
                 continue
             if n == "dot":
@@ -486,7 +526,7 @@ class Problem:
         i, j = self.slews.first, self.slews.second
         return slew_sigma(
             self.slews, std_in, sd_in["gyro"], sd_in["accel"], x["accel"][i], x["accel"][j],
-            self.slew_basis, self.slew_earth_rate, self.latitude_deg,
+            self.slew_basis, self.slew_earth_rate, self.latitude_deg, self.slew_excess_rad,
         )  # fmt: skip
 
     def at(self, theta: np.ndarray) -> Problem:
