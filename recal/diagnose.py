@@ -438,6 +438,13 @@ def diagnose(
     fit0 = _fit(base, opt, chosen)
     if fit0.degenerate or base.observability.verdict == "insufficient":
         fit0 = _rescue(base, opt, chosen, list(pool), fit0, notes)
+    if fit0.rank != base.observability.rank and np.isfinite(base.chi2_red) and n > fit0.rank:
+        notes.append(
+            f"the baseline here fits {fit0.rank} directions and recal calibrate "
+            f"{base.observability.rank} (diagnose fits directions the data pin down to "
+            f"{FIT_INFO_MIN:g} of their typical change, calibrate to 1), so its chi2_red "
+            f"({fit0.rss / (n - fit0.rank):.3g}) differs from calibrate's ({base.chi2_red:.3g})"
+        )
     ranked: list[Candidate] = []
     suggested: list[str] = []
     picked: list[Candidate] = []  # each suggestion as scored against the model it joined

@@ -176,3 +176,14 @@ def test_diagnose_does_not_call_an_exactly_determined_fit_at_the_noise_floor():
     assert doc["chi2_red"] is None and doc["ladder"][0]["chi2_red"] is None
     assert not d.model_fails and "exactly determined" in format_diagnosis(d)
     assert "chi2_red n/a (no redundancy)" in diagnosis_html(d)
+
+
+def test_diagnose_says_why_its_baseline_chi2_differs_from_calibrates():
+    pos = simulate_positions(CoefficientSet.seed_truth(), "random", 10, 45.0, seed=1)
+    cal = calibrate(pos, CalibrationOptions(latitude_deg=45.0))
+    d = diagnose(pos, CalibrationOptions(latitude_deg=45.0), candidates=[])
+    doc = d.to_json_dict()
+    assert doc["ladder"][0]["directions"] != cal.observability.rank
+    (note,) = [n for n in doc["notes"] if n.startswith("the baseline here fits")]
+    assert f"({doc['chi2_red']:.3g}) differs from calibrate's ({cal.chi2_red:.3g})" in note
+    assert f"recal calibrate {cal.observability.rank}" in note
