@@ -41,7 +41,9 @@ def test_stale_side_file_is_ignored_with_the_reason_and_never_announced(with_sle
     (d / "stale.slews.npz").write_bytes((d / "pos.slews.npz").read_bytes())
     # a new pos.csv from another source beside the old side file
     assert main(["simulate", "--latitude", "40", "-o", str(stale)]) == 0
-    capsys.readouterr()
+    assert "stale.slews.npz beside it belongs to the positions file it replaced" in (
+        capsys.readouterr().err
+    )
     assert main(["calibrate", str(stale), "--latitude", "40", "--json"]) == 0
     out = capsys.readouterr()
     doc = json.loads(out.out)

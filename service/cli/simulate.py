@@ -294,6 +294,12 @@ def run(args: argparse.Namespace) -> int:
             f"{args.output}",
             file=sys.stderr,
         )
+        from service.cli.positions import slews_path
+
+        side = slews_path(args.output)
+        if side.is_file():  # written by `recal positions` for the file just replaced
+            print(f"recal simulate: {side} beside it belongs to the positions file it replaced "
+                  "(these positions have no slews); calibrate will ignore it", file=sys.stderr)  # fmt: skip
     return 0
 
 
