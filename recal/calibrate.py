@@ -515,10 +515,17 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
         reasons.setdefault(r, []).append(d)
     for r, dirs in reasons.items():
         if r == COMMON_ROTATION_REASON:
+            # the relative frame is estimated only when none of its rotations is held as well
+            weak = any(q.startswith("a rotation of the gyro frame") for q in reasons)
+            head = (
+                "with slews the gyro frame could be estimated relative to the accelerometer "
+                "frame, but here the slews pin it down too weakly (below)"
+                if weak
+                else "with slews the gyro frame is estimated relative to the accelerometer frame"
+            )
             notes.append(
-                f"with slews the gyro frame is estimated relative to the accelerometer frame; "
-                f"{r} ({len(dirs)} direction(s): {'; '.join(dirs)}); an outside reference of "
-                "known rotations would show it"
+                f"{head}; {r} ({len(dirs)} direction(s): {'; '.join(dirs)}); an outside "
+                "reference of known rotations would show it"
             )
         elif r != ROTATION_REASON:  # the rotations are expected and listed in observability
             notes.append(f"held at the prior ({len(dirs)} direction(s): {'; '.join(dirs)}): {r}")

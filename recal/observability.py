@@ -177,6 +177,16 @@ COMMON_ROTATION_REASON = (
 _ANTISYMMETRIC_PAIRS = (("Exz", "Eyz"), ("Exy", "Ezy"), ("Eyx", "Ezx"))
 
 
+def _weak_rotation_reason(seen: float) -> str:
+    """Why a frame rotation the slews do see (``seen``: whitened change per typical change,
+    beyond the directions estimated before it) is still held."""
+    return (
+        "a rotation of the gyro frame relative to the accelerometer frame: only the slews see "
+        f"it, and they pin it down only to {1 / max(seen, 1e-300):.2g}x its typical change "
+        "(needs 1x or better)"
+    )
+
+
 def rotation_span(layout: ParameterLayout) -> np.ndarray:
     """Orthonormal (D, 3 per triad) span of the antisymmetric misalignments, to first order the
     rotations of each triad's frame."""
@@ -266,6 +276,7 @@ def analyze(
     # it in the accelerometer's antisymmetric misalignment (rows of the forced-held columns)
     # (known rotations, an outside reference, show it: nothing is forced then)
     relative_only = "slew" in problem.invariant_names and "rotation" not in problem.invariant_names
+    motion = bool({"slew", "rotation", "closure"} & set(problem.invariant_names))
     forced = accel_rotation_span(layout) if relative_only else np.zeros((D, 0))
     Q = np.zeros((R, 0))  # orthonormal residual-space span claimed so far
     basis_cols, null_cols, reasons, s_kept, s_held = [], [], [], [], []
@@ -295,7 +306,11 @@ def analyze(
         rot, other = _split_rotations(V[:, ~keep], rotations)
         null_cols += [rot, other]
         s_held.append(s[~keep])
-        reasons += [ROTATION_REASON] * rot.shape[1]
+        for v in rot.T:  # with slews a frame rotation is seen, only perhaps too weakly
+            seen = float(np.linalg.norm(Jg @ v[idx] - Q @ (Q.T @ (Jg @ v[idx]))))
+            reasons.append(
+                _weak_rotation_reason(seen) if motion and seen >= structural else ROTATION_REASON
+            )
         full = Q.shape[1] >= R  # every equation already taken
         for v in other.T:
             alone = float(np.linalg.norm(Jg @ v[idx]))

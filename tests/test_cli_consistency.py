@@ -189,3 +189,36 @@ def test_diagnose_says_why_its_baseline_chi2_differs_from_calibrates():
     (note,) = [n for n in doc["notes"] if n.startswith("the baseline here fits")]
     assert f"({doc['chi2_red']:.3g}) differs from calibrate's ({cal.chi2_red:.3g})" in note
     assert f"recal calibrate {cal.observability.rank}" in note
+
+
+IMUCAL_COLUMNS = "gyro_x=gyr_x,gyro_y=gyr_y,gyro_z=gyr_z,accel_x=acc_x,accel_y=acc_y,accel_z=acc_z"
+REAL = {  # recording args for `recal positions`, then calibrate's
+    "ferraris": (["imucal/example_ferraris_session.csv", "--format", "csv", "--rate", "102.4",
+                  "--columns", IMUCAL_COLUMNS], []),
+    "xsens": (["xsens_static_poses_acc.txt", "xsens_static_poses_gyro.txt", "--format",
+               "xsens-text"], ["--latitude", "57.834"]),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_real_recordings_say_one_thing_about_the_gyro_frame(name, shared_data, tmp_path, capsys):
+    """With slews the notes said "the gyro frame is estimated relative to the accelerometer
+    frame" while the Ferraris fit held those rotations for "no norm can see it"."""
+    rec, cal = REAL[name]
+    first = rec.index("--format")
+    files = [str(shared_data / f) for f in rec[:first]]
+    pos = tmp_path / "pos.csv"
+    assert main(["positions", *files, *rec[first:], "-o", str(pos)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(pos), *cal, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "slew" in doc["residuals"]
+    held = doc["observability"]["held"]
+    gyro_rot = [h for h in held if h["reason"].startswith("a rotation of the gyro frame")]
+    assert not [h for h in held if "no norm can see it" in h["reason"]]  # the slews see them
+    said = " ".join(doc["notes"])
+    assert ("the gyro frame is estimated relative to the accelerometer frame" in said) == (
+        not gyro_rot
+    )
+    for h in gyro_rot:
+        assert h["direction"] in said and "only the slews see it" in said
