@@ -523,9 +523,11 @@ class StaticDetector:
         # accelerometer-only windows (see _merge_accel).
         self._accel_track: StaticDetector | None = None
         self._shared: list[tuple] = []  # traces the detector that owns this track computed
+        self._own_sem = True  # the accel track leaves it to the windows it hands on
         if config.accel_only_windows and self._thr_g != math.inf:
             track = replace(config, gyro_threshold=math.inf, accel_only_windows=False)
             self._accel_track = StaticDetector(track)
+            self._accel_track._own_sem = False
         #: (start_s, end_s, None for a both-triad window, else the rejected stretch) of what
         #: this track decided near the accel track's undecided frames; pruned as it advances.
         self._covered: list[tuple[float, float, tuple | None]] = []
@@ -629,7 +631,9 @@ class StaticDetector:
                 if id(st) not in drop:
                     drop.add(id(st))
                     rep.rejected[st[2]] -= 1
-            self._out.append(replace(w, gyro_still=False))
+            std = np.concatenate((w.gyro_std, w.accel_std))
+            sem = _window_sem(w.samples, std, w.allan_sq, w.allan_terms, w.block_frames)
+            self._out.append(replace(w, gyro_still=False, gyro_sem=sem[:3], accel_sem=sem[3:]))
             rep.still_stretches_used += 1
             rep.windows_kept += 1
             rep.accel_only_windows += 1
@@ -1151,7 +1155,7 @@ class StaticDetector:
                 rate = (nt * stv - st * sv) / den * 3600.0  # degC/s -> degC/h
         t0 = self._t0
         std = np.sqrt(np.concatenate((var_g, var_a)))
-        sem = _standard_errors(np.array([n]), std[None], [(allan_sq, allan_terms)], g.block)[0]
+        sem = _window_sem(int(n), std, allan_sq, allan_terms, g.block) if self._own_sem else None
         self._out.append(
             Window(
                 start_s=piece.t_first - t0,
@@ -1172,12 +1176,18 @@ class StaticDetector:
                 block_frames=g.block,
                 allan_sq=allan_sq,
                 allan_terms=allan_terms,
-                gyro_sem=sem[:3],  # from this window's own samples
-                accel_sem=sem[3:],
+                gyro_sem=np.full(3, np.nan) if sem is None else sem[:3],  # its own samples
+                accel_sem=np.full(3, np.nan) if sem is None else sem[3:],
             )
         )
 
         self.report.windows_kept += 1
+
+
+def _window_sem(n: int, std: np.ndarray, allan_sq, allan_terms, block: int) -> np.ndarray:
+    """(6,) standard errors of one window's means (gyro x y z, accel x y z) from its own
+    samples, correlated noise included (recal.noise)."""
+    return _standard_errors(np.array([n]), std[None], [(allan_sq, allan_terms)], block)[0]
 
 
 def _edges(prev: bool, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
