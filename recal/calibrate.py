@@ -57,6 +57,9 @@ UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "r
 #: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
 #: so the FOG's 0.05 deg/h would call every bias such a gyro's windows can give "not seen".
 SLEW_GYRO_BIAS_TYPICAL_DPH = 10.0 * OMEGA_IE_DEG_H
+#: Typical relative change of the scale factors of a gyro that cannot see Earth rate: a MEMS
+#: gyro's datasheet scale tolerance is 1-3 % (131 counts/(deg/s) +- 2 %, say).
+SLEW_GYRO_SCALE_TYPICAL = 1e-2
 
 
 @dataclass(frozen=True)
@@ -599,17 +602,21 @@ def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
 def _slew_gyro_models(
     models: tuple[Model, ...], layout: ParameterLayout, theta: np.ndarray
 ) -> tuple[Model, ...]:
-    """The models with the gyro bias's typical change set for a gyro calibrated from slews:
-    max(10 x Earth rate, the scale's typical relative change x |b|). The second term because
-    such a gyro's zero-rate output is large against Earth rate: a scale change of 1000 ppm moves
-    the input-referred bias b by 1000 ppm of it, and the two must be judged on one footing."""
+    """The models with the gyro's typical changes set for a gyro blind to Earth rate (a MEMS
+    gyro calibrated from slews): the scale's at least :data:`SLEW_GYRO_SCALE_TYPICAL` (its
+    datasheet tolerance: a scale the data pin to 0.5 % is worth estimating although a FOG's
+    1000 ppm would call it unseen), the bias's max(10 x Earth rate, the scale's typical relative
+    change x |b|). The second term because such a gyro's zero-rate output is large against
+    Earth rate: a relative scale change moves the input-referred bias b by as much of it, and
+    the two must be judged on one footing."""
     sl = layout.term_slices()
     scale = next(t for m in models for t in m.terms if t.name == "gyro.scale")
-    rel = np.asarray(scale.typical, float)
+    rel = np.maximum(np.asarray(scale.typical, float), SLEW_GYRO_SCALE_TYPICAL)
     typ = np.maximum(SLEW_GYRO_BIAS_TYPICAL_DPH, rel * np.abs(theta[sl["gyro.bias"]]))
+    new = {"gyro.bias": typ, "gyro.scale": rel}
     return tuple(
         Model(m.sensor, tuple(
-            replace(t, typical=tuple(float(v) for v in typ)) if t.name == "gyro.bias" else t
+            replace(t, typical=tuple(float(v) for v in new[t.name])) if t.name in new else t
             for t in m.terms))
         for m in models
     )  # fmt: skip
@@ -692,25 +699,33 @@ def slew_excess(problem: Problem, theta0: np.ndarray, typical: np.ndarray) -> tu
 
 def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
     """What the static windows (gyro norm, dot product: Earth rate) and the motion (slews,
-    closed turns) each tell about the gyro scale factors: the share of each in the Fisher
-    information of every gyro.scale coefficient at ``theta`` (whitened residuals)."""
+    closed turns, known rotations) each tell about the gyro scale factors: their 1-sigma, ppm,
+    from each alone and together (Fisher information at ``theta``, every other coefficient
+    estimated alongside), or None without slews."""
     sl = problem.layout.term_slices().get("gyro.scale")
     if sl is None or problem.slews is None:
         return None
-    idx = np.arange(problem.layout.size)[sl]
-    J = jacobian(problem, theta, np.diag(typical)[idx])  # (R, 3)
+    J = jacobian(problem, theta, np.diag(typical))  # (R, D), typical-scaled
     rows, start = {}, 0
     for n in problem.invariant_names:
-        rows[n] = slice(start, start + problem.n_of(n))
+        rows[n] = np.arange(start, start + problem.n_of(n))
         start += problem.n_of(n)
-    static = sum(np.sum(J[rows[n]] ** 2, axis=0) for n in ("gyro_norm", "dot") if n in rows)
-    motion = sum(np.sum(J[rows[n]] ** 2, axis=0) for n in ("slew", "closure", "rotation")
-                 if n in rows)  # fmt: skip
-    share = np.asarray(static) / np.maximum(np.asarray(static) + np.asarray(motion), 1e-300)
-    axes = "/".join(f"{100 * v:.3g}" for v in share)
+    empty = np.zeros(0, dtype=int)
+    static = np.concatenate([rows.get(n, empty) for n in ("gyro_norm", "accel_norm", "dot")])
+    motion = np.concatenate([rows.get(n, empty) for n in ("accel_norm", "slew", "closure",
+                                                           "rotation")])  # fmt: skip
+    idx = np.arange(problem.layout.size)[sl]
+    rel = typical[idx] / np.maximum(np.abs(theta[idx]), 1e-300)  # typical -> relative
+
+    def sd_ppm(r: np.ndarray) -> str:
+        cov = np.linalg.pinv(J[r].T @ J[r], rcond=1e-10)
+        sd = np.sqrt(np.clip(np.diag(cov)[idx], 0, None))
+        return "/".join("not seen" if v > 10 else f"{v * w * 1e6:.3g}" for v, w in zip(sd, rel))
+
     return (
-        f"gyro scale information (x/y/z) from Earth rate in the still windows: {axes} %; the "
-        "rest from the slews (the two enter one fit, each weighted by its own noise)"
+        "gyro scale 1-sigma (x/y/z, ppm, window noise only) from Earth rate in the still "
+        f"windows alone: {sd_ppm(static)}; from the slews alone: {sd_ppm(motion)}; together: "
+        f"{sd_ppm(np.arange(J.shape[0]))} (one fit, each weighted by its own noise)"
     )
 
 

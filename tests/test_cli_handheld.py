@@ -79,11 +79,6 @@ def test_the_accelerometer_is_calibrated_from_every_pose(handheld, capsys):
     assert np.all(rel < 5e-4)  # ten hand-held poses: scale to a few 1e-4
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 18 item 6 (gyro from the slews without static gyro information) is not in "
-    "place: calibrate exits 2 'rank 12 of 27'; remove this mark when it lands",
-)
 def test_handheld_gyro_is_calibrated_from_the_slews(handheld, capsys):
     """Both triads: the accelerometer from all poses, the gyro's scale from the slews (its
     Earth rate is far below its noise; 5 of its 10 windows tremble)."""

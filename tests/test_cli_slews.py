@@ -31,11 +31,16 @@ def test_xsens_gyro_is_calibrated_from_the_slews(shared_data, tmp_path, capsys):
     assert main(cal) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["sensor"] == "both"
-    assert set(doc["status"]["gyro"]["misalignment"].values()) == {"estimated"}
+    # the slews misfit (chi2_red ~10 on their window noise): an unmodelled per-slew error is
+    # estimated from it, and the misalignment directions it leaves below their typical change
+    # are held (1 of 6 in the measured run)
+    assert any("unmodelled error of" in n for n in doc["notes"])
+    status = list(doc["status"]["gyro"]["misalignment"].values())
+    assert status.count("estimated") >= 4
     assert doc["status"]["gyro"]["scale"] == ["estimated"] * 3
     sigma = np.array(doc["uncertainty"]["gyro"]["scale"])
     scale = np.array(doc["coefficients"]["gyro"]["scale"])
-    assert np.all(sigma / scale < 3e-3)  # counts per deg/h, ~0.0232 (1/43 deg/h per count)
+    assert np.all(sigma / scale < 6e-3)  # counts per deg/h, ~0.0232 (1/43 deg/h per count)
     assert np.allclose(scale, 0.0231, rtol=0.02)
     slew = doc["residuals"]["slew"]
     assert (
