@@ -129,7 +129,8 @@ class FloorKeeper:
         """Take the moving-variance traces of windows that passed; store a new floor now and
         then."""
         for w in windows:
-            if np.isfinite(w.accel_mvar) and np.isfinite(w.gyro_mvar):
+            # an accelerometer-only window's gyro trace is tremor, not the gyro's noise floor
+            if np.isfinite(w.accel_mvar) and np.isfinite(w.gyro_mvar) and w.gyro_still:
                 self._recent.append((w.accel_mvar, w.gyro_mvar))
                 self._since += 1
                 self._windows += 1

@@ -5,7 +5,10 @@ recording's length): a KVH capture (``--format kvh-a|kvh-b|kvh-c``, decoded by
 ``drivers.StreamDecoder``; gyro in deg/h, accel in g), an Xsens text pair (``--format
 xsens-text``: the acc file and the gyro file, raw counts) or a CSV log (``--format csv``,
 conventions section 9, output units). The detector is ``recal.static``; the CSV columns are
-conventions section 4 plus ``frames_lost`` and ``frames_invalid``.
+conventions section 4 plus ``frames_lost``, ``frames_invalid`` and ``gyro_still`` (0 for a pose
+kept for the accelerometer only: the gyro trembled, docs/static.md "Per-triad stillness"). The
+summary on stderr counts the poses (still stretches of the accelerometer) and says why each
+rejected stretch was rejected.
 
 Beside the CSV, a third pass keeps the gyro samples of each slew (the motion between two
 consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal.slews), which
@@ -38,7 +41,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "samples, mean and standard deviation per axis, temperature and its slope. By default "
         "the thresholds are a multiple of the recording's own noise floor, learned in a first "
         "pass over it; they can also be given, or learned from a still period at the start "
-        "(--init-still). The input is streamed: memory does not grow with its length.",
+        "(--init-still). A pose where only the accelerometer is still (held by hand: the gyro "
+        "trembles) is kept for the accelerometer only (column gyro_still 0). The summary counts "
+        "the poses and says why each rejected stretch was rejected. The input is streamed: "
+        "memory does not grow with its length.",
     )
     add_input_options(p)
     p.add_argument(
