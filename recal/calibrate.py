@@ -476,10 +476,14 @@ def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...
 
 
 def _decided(report: ObservabilityReport, when: str = "") -> ObservabilityReport:
-    """``report``, or :class:`RecalInputError` when it cannot show scale and bias."""
-    if report.verdict == "insufficient":
+    """``report``, or :class:`RecalInputError` when nothing at all can be estimated
+    (conventions section 8). A design that cannot show some scale factors or biases is a
+    partial success: those are held at the prior with its uncertainty, the verdict stays
+    "insufficient" (a gate can refuse to publish it) and a note says so
+    (:func:`_observability_notes`)."""
+    if report.verdict == "insufficient" and report.rank == 0:
         where = f" {when}" if when else ""
-        raise RecalInputError(f"unusable design{where}: {report.message}")
+        raise RecalInputError(f"unusable design{where}: nothing can be estimated: {report.message}")
     return report
 
 
@@ -513,6 +517,11 @@ def _excess_note(
 def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[str]:
     """What the user must know about what was held and whether the fit can be checked."""
     notes = []
+    if report.verdict == "insufficient":
+        notes.append(
+            f"partial calibration: {report.message}; those scale factors and biases are held "
+            "at the prior with its uncertainty, the rest is estimated"
+        )
     reasons: dict[str, list[str]] = {}
     for d, r in zip(report.held_directions, report.held_reasons, strict=True):
         reasons.setdefault(r, []).append(d)
@@ -718,7 +727,9 @@ def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray
     rel = typical[idx] / np.maximum(np.abs(theta[idx]), 1e-300)  # typical -> relative
 
     def sd_ppm(r: np.ndarray) -> str:
-        cov = np.linalg.pinv(J[r].T @ J[r], rcond=1e-10)
+        # a weak prior (100 typical changes) keeps unseen directions finite and makes adding
+        # rows never raise a 1-sigma
+        cov = np.linalg.inv(J[r].T @ J[r] + 1e-4 * np.eye(J.shape[1]))
         sd = np.sqrt(np.clip(np.diag(cov)[idx], 0, None))
         return "/".join("not seen" if v > 10 else f"{v * w * 1e6:.3g}" for v, w in zip(sd, rel))
 

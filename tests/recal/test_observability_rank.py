@@ -8,7 +8,6 @@ import pytest
 
 from recal.calibrate import CalibrationOptions, calibrate
 from recal.coefficients import CoefficientSet
-from recal.errors import RecalInputError
 from recal.model import Model, ParameterLayout
 from recal.observability import INFO_MIN, ROTATION_REASON, analyze, jacobian
 from recal.positions import Positions
@@ -107,8 +106,9 @@ def test_rich_designs_keep_the_plain_svd_observable_span(design, sensors):
 def test_rank_not_counting_decides_how_few_positions_are_enough():
     truth = CoefficientSet.seed_truth()
     few = simulate_positions(truth, "random", 5, sensors=("gyro",), seed=1)
-    with pytest.raises(RecalInputError, match=r"cannot separate gyro\.scale\.Kz \(rank 5 of 12\)"):
-        calibrate(few, CalibrationOptions(sensor="gyro"))
+    res = calibrate(few, CalibrationOptions(sensor="gyro"))  # partial: Kz held at the prior
+    assert any("cannot separate gyro.scale.Kz (rank 5 of 12)" in n for n in res.notes)
+    assert res.status["gyro.scale"][2] == "held"
     eight = simulate_positions(truth, "random", 8, sensors=("gyro",), seed=1)
     res = calibrate(eight, CalibrationOptions(sensor="gyro"))  # 8 equations, rank 8
     assert res.observability.rank == 8 and res.observability.redundancy == 0
