@@ -838,7 +838,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
                 f"{', '.join(str(int(i)) for i in turns.index)}: gravity returns to where it "
                 f"was while the gyro turns {', '.join(f'{int(k):+d}' for k in turns.turns)} "
                 f"x 360 deg about the vertical): each taken as exactly whole turns, heading "
-                f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (option turn_closure_sigma_deg)"
+                f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (--turn-closure)"
             )
         excess, chi2_slews = slew_excess(problem, theta0, typical)
         if excess > 0:

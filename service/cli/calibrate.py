@@ -82,6 +82,15 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
         "from window k to k+1), axis in the first window's sensor axes; the gyro frame and scale "
         "are then tied to the case (docs/engine.md)",
     )
+    p.add_argument(
+        "--turn-closure",
+        metavar="DEG",
+        type=float,
+        default=None,
+        help="1-sigma, deg, of the heading closure of a closed turn (a slew that turns whole "
+        "revolutions about the vertical and comes back to the same tilt: taken as exactly k x "
+        "360 deg; default 0.1); 0 assumes none (docs/engine.md)",
+    )
 
 
 def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOptions:
@@ -117,6 +126,7 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
     return CalibrationOptions(
         slews=slews,
         known_rotations=load_known_rotations(args, slews),
+        **_turn_closure(args),
         sensor=args.sensor,
         method=args.method,
         mc_runs=args.mc,
@@ -130,6 +140,19 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
         polish=args.polish,
         swarm_config=swarm,
     )
+
+
+def _turn_closure(args: argparse.Namespace) -> dict[str, float]:
+    """``--turn-closure DEG`` as CalibrationOptions.turn_closure_sigma_deg (not given: the
+    engine's default)."""
+    from recal.errors import RecalInputError
+
+    value = getattr(args, "turn_closure", None)
+    if value is None:
+        return {}
+    if not (value >= 0 and value < 180):
+        raise RecalInputError(f"--turn-closure must be between 0 and 180 deg, not {value}")
+    return {"turn_closure_sigma_deg": float(value)}
 
 
 def _check_prior_plugins(prior, terms: dict, path: str) -> None:
