@@ -92,6 +92,10 @@ class Problem:
             of the first window (a gyro that sees Earth rate); False leaves it in the noise.
         slew_basis: (S, 2, 3) the two directions orthogonal to gravity at each slew's second
             window (at the prior) on which the residual is taken.
+        closed_turns: slews taken as whole turns about the vertical (:class:`ClosedTurns`,
+            found at the prior by :meth:`build`): the "closure" invariant, 1 residual each, rad.
+        slew_excess_rad: an unmodelled error per slew residual added in quadrature to its sigma
+            (estimated from the slews' misfit by :func:`recal.calibrate.slew_excess`), rad.
     """
 
     positions: Positions
