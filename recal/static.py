@@ -304,21 +304,23 @@ class DetectionReport:
     gyro_reference: np.ndarray | None = None
     duration_s: float = 0.0
     short_stretches: int = 0  # quiet stretches too short to give a window (no fault involved)
-    #: Still stretches of the accelerometer (the poses seen; with per-triad stillness), and how
-    #: many of them gave a window (for both triads or for the accelerometer only).
-    still_stretches: int = 0
-    still_stretches_used: int = 0
-    accel_only_windows: int = 0  # windows kept for the accelerometer only (gyro not still)
-    #: (start_s, end_s) of rejected stretches that are part of a pose other windows use.
-    in_used_pose: set[tuple[float, float]] = field(default_factory=set)
     longest_short_frames: int = 0  # the longest of them, quiet frames
     edge_trim_frames: int = 0
     required_frames: int = 0
     #: (start_s, end_s, reason) of rejected quiet stretches, times from the session start, in the
     #: order they were decided, at most MAX_REJECTED_STRETCHES. A quiet run too short as a whole
     #: is one "too_short" stretch; a piece of a long run cut short by a fault is listed under that
-    #: fault; "rotating" and "invalid_status" give the trimmed run's first and last frame.
+    #: fault; "rotating" and "invalid_status" give the trimmed run's first and last frame;
+    #: "gyro_not_still" an accelerometer-only window's first and last frame.
     rejected_stretches: list[tuple[float, float, str]] = field(default_factory=list)
+    #: Per-triad stillness: still stretches of the accelerometer (the poses seen), how many of
+    #: them gave a window (for both triads or for the accelerometer only), and the windows kept
+    #: for the accelerometer only (gyro not still). 0 with ``accel_only_windows`` off.
+    still_stretches: int = 0
+    still_stretches_used: int = 0
+    accel_only_windows: int = 0
+    #: (start_s, end_s) of rejected stretches that are part of a pose other windows use.
+    in_used_pose: set[tuple[float, float]] = field(default_factory=set)
 
     def _add_stretches(self, start_s, end_s, reason) -> None:
         """List rejected stretches (scalars or arrays; reason one name or one per stretch)."""
@@ -604,8 +606,10 @@ class StaticDetector:
         returns. An accel window that overlaps a both-triad window is that pose seen again
         (dropped); one that does not becomes an accelerometer-only window, and the both-triad
         rejections inside it (tremor cut the gyro's quiet frames short) give way to one
-        "gyro_not_still" stretch. An accel-track rejection overlapping nothing of this track
-        is a pose the gyro hid from it (listed); otherwise this track has listed it already.
+        "gyro_not_still" stretch, unless one both-triad quiet stretch covers GYRO_QUIET_SHARE
+        of the run (a still gyro, moving edges: the pose stays rejected as this track found
+        it). An accel-track rejection overlapping nothing of this track is a pose the gyro hid
+        from it (listed); otherwise this track has listed it already.
         """
         rep, track = self.report, self._accel_track.report
         own = rep.rejected_stretches
