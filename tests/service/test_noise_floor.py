@@ -104,3 +104,17 @@ def test_refined_only_from_windows_that_passed(tmp_path: Path, session) -> None:
     # what a slew would give
     sigma = np.array([rows["accel"], rows["gyro"]])
     assert np.all(sigma > 0)
+
+
+def test_accelerometer_only_windows_do_not_refine_the_floor() -> None:
+    """A hand-held window's gyro moving variance is tremor, not the gyro's noise floor."""
+    from recal.session import simulate_handheld
+    from recal.static import detect_static
+    from service.pipeline import FloorKeeper
+
+    s = simulate_handheld(seed=0)  # 2 windows with both triads still, 8 for the accel only
+    windows = detect_static(s.time_s, s.gyro_out, s.accel_out).windows
+    keeper = FloorKeeper(store=None, device="hand", events=None, window_samples=101)
+    keeper.refine(windows)  # no floor yet: only collects (and stores nothing)
+    assert keeper._windows == sum(w.gyro_still for w in windows) == 2
+    assert [g for _, g in keeper._recent] == [w.gyro_mvar for w in windows if w.gyro_still]
