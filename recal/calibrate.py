@@ -60,6 +60,9 @@ SLEW_GYRO_BIAS_TYPICAL_DPH = 10.0 * OMEGA_IE_DEG_H
 #: Typical relative change of the scale factors of a gyro that cannot see Earth rate: a MEMS
 #: gyro's datasheet scale tolerance is 1-3 % (131 counts/(deg/s) +- 2 %, say).
 SLEW_GYRO_SCALE_TYPICAL = 1e-2
+#: Typical g-sensitivity of such a gyro, deg/h per g: MEMS datasheets give 0.01-0.1 deg/s/g
+#: (36-360 deg/h/g); a FOG's 0.01 deg/h/g would call what the windows show "not seen".
+SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G = 0.01 * 3600.0
 
 
 @dataclass(frozen=True)
@@ -617,12 +620,16 @@ def _slew_gyro_models(
     1000 ppm would call it unseen), the bias's max(10 x Earth rate, the scale's typical relative
     change x |b|). The second term because such a gyro's zero-rate output is large against
     Earth rate: a relative scale change moves the input-referred bias b by as much of it, and
-    the two must be judged on one footing."""
+    the two must be judged on one footing. A g-sensitivity in the model gets a MEMS's typical
+    size too (:data:`SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G`)."""
     sl = layout.term_slices()
     scale = next(t for m in models for t in m.terms if t.name == "gyro.scale")
     rel = np.maximum(np.asarray(scale.typical, float), SLEW_GYRO_SCALE_TYPICAL)
     typ = np.maximum(SLEW_GYRO_BIAS_TYPICAL_DPH, rel * np.abs(theta[sl["gyro.bias"]]))
     new = {"gyro.bias": typ, "gyro.scale": rel}
+    if "gyro.g_sensitivity" in sl:
+        g = next(t for m in models for t in m.terms if t.name == "gyro.g_sensitivity")
+        new["gyro.g_sensitivity"] = np.maximum(g.typical, SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G)
     return tuple(
         Model(m.sensor, tuple(
             replace(t, typical=tuple(float(v) for v in new[t.name])) if t.name in new else t
