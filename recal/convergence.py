@@ -33,6 +33,8 @@ SETTLED_SIGMA = 0.05
 MAX_ROUNDS = 8
 #: Rounds that re-reference the noise at the estimate before the problem is kept fixed.
 REREFERENCE = 2
+#: Re-referencing that changes an invariant's RMS noise by more than this factor is refused.
+MAX_SIGMA_RATIO = 2.0
 #: Two answers closer than this (Mahalanobis norm, sigma) are the same answer.
 SAME_ANSWER_SIGMA = 0.5
 
@@ -73,7 +75,11 @@ def _settle(problem, theta, theta0, typical, basis, rereference: int = REREFEREN
     T = typical[:, None] * basis
     while rounds < MAX_ROUNDS and T.shape[1]:
         if problem.noise_known and rounds < rereference:
-            problem = problem.at(theta)
+            moved_to = problem.at(theta)
+            if _comparable(problem, moved_to):
+                problem = moved_to
+            else:  # a degenerate estimate (scale running away): keep the noise where it was
+                rereference = rounds
         rounds += 1
         lm = solve_lm(problem, theta, T)
         evaluations += lm.evaluations
@@ -82,6 +88,18 @@ def _settle(problem, theta, theta0, typical, basis, rereference: int = REREFEREN
         if moved < SETTLED_SIGMA and rounds > min(rereference, 1):
             break
     return problem, theta, evaluations, rounds, moved
+
+
+def _comparable(a: Problem, b: Problem) -> bool:
+    """Whether two references of the noise agree within :data:`MAX_SIGMA_RATIO` per invariant:
+    re-referencing moves the propagated noise by the change of the gains, which is small near
+    a sound estimate; a large change means the estimate ran off (a degenerate valley)."""
+    for n, s in a.sigma.items():
+        ra = np.sqrt(np.mean(np.square(s)))
+        rb = np.sqrt(np.mean(np.square(b.sigma[n])))
+        if not (ra > 0 and rb > 0) or not 1 / MAX_SIGMA_RATIO < rb / ra < MAX_SIGMA_RATIO:
+            return False
+    return True
 
 
 def _chi2(problem: Problem, theta: np.ndarray, T: np.ndarray) -> float:
