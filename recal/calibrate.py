@@ -377,16 +377,28 @@ def describe_prior(
     return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
 
 
+#: A held coefficient that moved by less than this share of its 1-sigma is not worth naming.
+HELD_MOVE_SIGMA = 0.1
+
+
 def held_moved(
-    layout: ParameterLayout, theta0: np.ndarray, theta: np.ndarray, report: ObservabilityReport
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    theta: np.ndarray,
+    report: ObservabilityReport,
+    sd: np.ndarray,
 ) -> str | None:
-    """A note naming the held coefficients whose value is not the prior's: a coefficient is
-    held when less than half of it lies in the observable directions, but the part that does
-    moves with the estimated combinations. None when every held value is the prior's."""
+    """A note naming the held coefficients whose value moved off the prior by at least
+    :data:`HELD_MOVE_SIGMA` of their 1-sigma ``sd``: a coefficient is held when less than half
+    of it lies in the observable directions, but the part that does moves with the estimated
+    combinations. None when no held value moved that much."""
     moved = [
-        f"{n} {theta0[i]:.4g} -> {theta[i]:.4g} ({100 * report.share[i]:.2g} % of it observable)"
+        f"{n} {theta0[i]:.6g} -> {theta[i]:.6g} ({(theta[i] - theta0[i]) / sd[i]:+.2g} sigma; "
+        f"{100 * report.share[i]:.2g} % of it observable)"
         for i, n in enumerate(layout.names)
-        if not report.estimated[i] and not np.isclose(theta[i], theta0[i], rtol=1e-9, atol=0)
+        if not report.estimated[i]
+        and abs(theta[i] - theta0[i]) >= HELD_MOVE_SIGMA * sd[i]
+        and not np.isclose(theta[i], theta0[i], rtol=1e-9, atol=0)
     ]
     if not moved:
         return None
@@ -983,7 +995,7 @@ def calibrate(
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     status_flat = np.where(report.estimated, "estimated", "held")
     notes += _observability_notes(report, problem)
-    moved = held_moved(layout, theta0, theta, report)
+    moved = held_moved(layout, theta0, theta, report, sd)
     if moved:
         notes.append(moved)
     if convergence and not convergence.get("converged"):
