@@ -60,6 +60,9 @@ SLEW_GYRO_BIAS_TYPICAL_DPH = 10.0 * OMEGA_IE_DEG_H
 #: Typical relative change of the scale factors of a gyro that cannot see Earth rate: a MEMS
 #: gyro's datasheet scale tolerance is 1-3 % (131 counts/(deg/s) +- 2 %, say).
 SLEW_GYRO_SCALE_TYPICAL = 1e-2
+#: Typical misalignment of such a gyro, rad: a MEMS datasheet's cross-axis sensitivity of 1-2 %
+#: (a FOG's 1 mrad would hold what the slews pin to a few mrad).
+SLEW_GYRO_MISALIGNMENT_TYPICAL = 1e-2
 #: Typical g-sensitivity of such a gyro, deg/h per g: MEMS datasheets give 0.01-0.1 deg/s/g
 #: (36-360 deg/h/g); a FOG's 0.01 deg/h/g would call what the windows show "not seen".
 SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G = 0.01 * 3600.0
@@ -623,7 +626,7 @@ def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
     return theta
 
 
-def _slew_gyro_models(
+def blind_gyro_models(
     models: tuple[Model, ...], layout: ParameterLayout, theta: np.ndarray
 ) -> tuple[Model, ...]:
     """The models with the gyro's typical changes set for a gyro blind to Earth rate (a MEMS
@@ -632,13 +635,16 @@ def _slew_gyro_models(
     1000 ppm would call it unseen), the bias's max(10 x Earth rate, the scale's typical relative
     change x |b|). The second term because such a gyro's zero-rate output is large against
     Earth rate: a relative scale change moves the input-referred bias b by as much of it, and
-    the two must be judged on one footing. A g-sensitivity in the model gets a MEMS's typical
-    size too (:data:`SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G`)."""
+    the two must be judged on one footing. The misalignment and a g-sensitivity in the model
+    get a MEMS's typical sizes too (:data:`SLEW_GYRO_MISALIGNMENT_TYPICAL`,
+    :data:`SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G`)."""
     sl = layout.term_slices()
     scale = next(t for m in models for t in m.terms if t.name == "gyro.scale")
     rel = np.maximum(np.asarray(scale.typical, float), SLEW_GYRO_SCALE_TYPICAL)
     typ = np.maximum(SLEW_GYRO_BIAS_TYPICAL_DPH, rel * np.abs(theta[sl["gyro.bias"]]))
-    new = {"gyro.bias": typ, "gyro.scale": rel}
+    mis = next(t for m in models for t in m.terms if t.name == "gyro.misalignment")
+    new = {"gyro.bias": typ, "gyro.scale": rel,
+           "gyro.misalignment": np.maximum(mis.typical, SLEW_GYRO_MISALIGNMENT_TYPICAL)}  # fmt: skip
     if "gyro.g_sensitivity" in sl:
         g = next(t for m in models for t in m.terms if t.name == "gyro.g_sensitivity")
         new["gyro.g_sensitivity"] = np.maximum(g.typical, SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G)
@@ -648,6 +654,12 @@ def _slew_gyro_models(
             for t in m.terms))
         for m in models
     )  # fmt: skip
+
+
+def blind_gyro(models: Sequence[Model]) -> bool:
+    """Whether these models were sized for a gyro blind to Earth rate (:func:`blind_gyro_models`)."""
+    bias = next((t for m in models for t in m.terms if t.name == "gyro.bias"), None)
+    return bias is not None and min(bias.typical) >= SLEW_GYRO_BIAS_TYPICAL_DPH
 
 
 class _SetUp(NamedTuple):
@@ -809,7 +821,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     def build(theta: np.ndarray) -> Problem:
         if blind:  # the bias's typical change for a gyro blind to Earth rate
             nonlocal models, layout
-            models = _slew_gyro_models(models, layout, theta)
+            models = blind_gyro_models(models, layout, theta)
             layout = ParameterLayout(models)
         return Problem.build(
             positions, models, opt.latitude_deg, opt.height_m, theta,

@@ -63,7 +63,15 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from recal.calibrate import UNITS, CalibrationOptions, CalibrationResult, build_models, calibrate
+from recal.calibrate import (
+    UNITS,
+    CalibrationOptions,
+    CalibrationResult,
+    blind_gyro,
+    blind_gyro_models,
+    build_models,
+    calibrate,
+)
 from recal.errors import RecalInputError
 from recal.lm import covariance, solve_lm
 from recal.model import ParameterLayout
@@ -299,6 +307,11 @@ def _fit(
         b.with_terms([t for t in m.terms if t.name not in {u.name for u in b.terms}])
         for b, m in zip(base.problem.models, fresh, strict=True)
     )
+    if blind_gyro(base.problem.models):  # effects sized for a MEMS gyro, as calibrate's terms
+        prior = values_by_term(base.layout, base.theta_prior)
+        th = np.concatenate([np.asarray(prior.get(t.name, t.neutral), float)
+                             for m in models for t in m.terms])  # fmt: skip
+        models = blind_gyro_models(models, ParameterLayout(models), th)
     layout = ParameterLayout(models)
     start = start if start is not None else values_by_term(base.layout, base.theta)
     theta0 = np.concatenate(
@@ -307,7 +320,9 @@ def _fit(
     b = base.problem  # the baseline's slews and known rotations, so every fit sees the same data
     problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0,
                             slews=b.slews, slew_earth_rate=b.slew_earth_rate,
-                            known_rotations=b.known_rotations)  # fmt: skip
+                            known_rotations=b.known_rotations,
+                            turn_closure_sigma_deg=opt.turn_closure_sigma_deg,
+                            slew_excess_rad=b.slew_excess_rad)  # fmt: skip
     problem = problem.with_sigma(b.sigma, b.sigma_source)
     typical = layout.typical(theta0)
     report = analyze(problem, theta0, typical, info_min=FIT_INFO_MIN)

@@ -103,3 +103,37 @@ def test_ferraris_calibration_is_a_fixed_point(ferraris_positions: str, tmp_path
             y = np.array(b["coefficients"][sensor][key])
             sd = np.array(a["uncertainty"][sensor][key])
             assert np.all(np.abs(y - x) < sd), (sensor, key, (y - x) / sd)
+
+
+WARMUP = str(Path(__file__).resolve().parents[1] / "docs" / "examples" / "warmup_plugin.py")
+
+
+def test_ferraris_misfit_is_named_and_adding_it_fits(ferraris_positions: str, capsys) -> None:
+    """chi2_red above 3: diagnose points at a drift with time, the shipped warm-up plugin and the
+    gyro's g-sensitivity it then suggests bring calibrate's chi2_red to <= 3."""
+    doc = _run_json(capsys, ["diagnose", ferraris_positions])
+    assert doc["model_fails"] and "write it as a --plugin" in doc["verdict"]
+    first = next(iter(doc["residual_correlations"]))  # strongest first
+    assert first == "accel_norm vs time_h", doc["residual_correlations"]
+    doc = _run_json(capsys, ["diagnose", ferraris_positions, "--plugin", WARMUP])
+    suggested = doc["suggested_effects"]
+    assert suggested[:1] == ["accel.bias_drift"], suggested
+    effects = ",".join(f"+{e}" for e in suggested)
+    fit = _run_json(capsys, ["calibrate", ferraris_positions, "--plugin", WARMUP,
+                             "--effects", effects])  # fmt: skip
+    assert fit["chi2_red"] <= 3.0 and fit["converged"] is True
+
+
+def test_xsens_misfit_is_named_and_adding_it_fits(shared_data: Path, tmp_path, capsys) -> None:
+    """The Xsens MEMS recording: chi2_red 25 with the seed model; diagnose names the gyro's
+    g-sensitivity, and calibrate with it fits to chi2_red <= 3."""
+    pos = str(tmp_path / "xsens.csv")
+    files = [str(shared_data / f"xsens_static_poses_{s}.txt") for s in ("acc", "gyro")]
+    assert main(["positions", *files, "--format", "xsens-text", "-o", pos]) == 0
+    site = ["--latitude", "57.834"]  # the recording's site (imu_tk)
+    base = _run_json(capsys, ["calibrate", pos, *site])
+    assert base["chi2_red"] > 3
+    doc = _run_json(capsys, ["diagnose", pos, *site])
+    assert doc["suggested_effects"][:1] == ["gyro.g_sensitivity"], doc["suggested_effects"]
+    fit = _run_json(capsys, ["calibrate", pos, *site, "--effects", "+gyro.g_sensitivity"])
+    assert fit["chi2_red"] <= 3.0 and fit["converged"] is True
