@@ -209,6 +209,18 @@ def simulate_session(
     )
 
 
+def sample_context(
+    time_s: np.ndarray, temperature_c: np.ndarray, specific_force_g: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The per-sample context the sensor models read (a constant temperature: no rate)."""
+    return {
+        "temperature_c": temperature_c,
+        "temperature_rate_c_per_h": np.zeros(len(time_s)),
+        "time_h": np.asarray(time_s) / 3600.0,
+        "specific_force_g": specific_force_g,
+    }
+
+
 def gauss_markov(
     rng: np.random.Generator, n: int, sigma: float, tau_s: float, rate_hz: float
 ) -> np.ndarray:
@@ -454,12 +466,7 @@ def simulate_handheld(
     accel_in = mid.inv().apply(np.array([0.0, 0.0, g]) + hand.sum(axis=2))
     time_s = np.arange(N) / rate_hz
     temp = np.full(N, float(temperature_c))
-    ctx = {
-        "temperature_c": temp,
-        "temperature_rate_c_per_h": np.zeros(N),
-        "time_h": time_s / 3600.0,
-        "specific_force_g": accel_in,
-    }
+    ctx = sample_context(time_s, temp, accel_in)
     sigma = {
         "gyro": spec.gyro_noise_dps_rt_hz * 3600.0 * math.sqrt(rate_hz),  # deg/h per sample
         "accel": spec.accel_noise_ug_rt_hz * 1e-6 * math.sqrt(rate_hz),  # g per sample

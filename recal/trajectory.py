@@ -32,7 +32,7 @@ from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
 from recal.navigation import ENU_FROM_NED, WGS84_A_M, WGS84_E2, attitude_matrix, euler_angles
 from recal.reference import G0_M_S2, OMEGA_IE_RAD_S, normal_gravity_g, normal_gravity_m_s2
-from recal.session import MAX_SAMPLES, Session, gauss_markov
+from recal.session import MAX_SAMPLES, Session, gauss_markov, sample_context
 from recal.simulate import NoiseSpec, truth_model
 
 _RAD_S_TO_DEG_H = math.degrees(1.0) * 3600.0
@@ -289,12 +289,7 @@ def simulate_voyage(
     rng = np.random.default_rng(seed)
     noise_at_rate = replace(noise, rate_hz=rate_hz)
     temp = np.full(N, float(temperature_c))
-    ctx = {
-        "temperature_c": temp,
-        "temperature_rate_c_per_h": np.zeros(N),
-        "time_h": time_s / 3600.0,
-        "specific_force_g": accel_in,
-    }
+    ctx = sample_context(time_s, temp, accel_in)
     out = {}
     for sensor, x in (("gyro", gyro_in), ("accel", accel_in)):
         theta, model = truth_model(truth, sensor)
