@@ -537,8 +537,9 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
     notes = []
     if report.verdict == "insufficient":
         notes.append(
-            f"partial calibration: {report.message}; those scale factors and biases are held "
-            "at the prior with its uncertainty, the rest is estimated"
+            f"partial calibration: {report.message}; what the data do not show of them is "
+            "held at the prior with its uncertainty (a coefficient less than 25 % seen is "
+            "'held'), the rest is estimated"
         )
     reasons: dict[str, list[str]] = {}
     for d, r in zip(report.held_directions, report.held_reasons, strict=True):

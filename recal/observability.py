@@ -328,11 +328,12 @@ def analyze(
     cond = float(s_max / kept.min()) if rank else float("inf")
     # scale and bias must be seen: without them there is nothing to recalibrate
     core = np.array([t.group in PRIORITY[0] for t in layout.term_of()])
-    blind = [n for n, c, sh in zip(names, core, share, strict=True) if c and sh < 1 - 0.1]
+    blind = [f"{n} ({100 * sh:.0f} % seen)"
+             for n, c, sh in zip(names, core, share, strict=True) if c and sh < 1 - 0.1]  # fmt: skip
     if blind:
         verdict = "insufficient"
         message = (
-            f"the positions cannot separate {', '.join(blind)} "
+            f"the positions cannot fully separate {', '.join(blind)} "
             f"(rank {rank} of {D}); add orientations that tilt those axes"
         )
     elif rank == D:

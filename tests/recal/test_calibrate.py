@@ -119,7 +119,7 @@ def test_heading_only_vessel_design_is_a_partial_calibration(sensor):
     res = calibrate(pos, CalibrationOptions(sensor=sensor))
     assert res.observability.verdict == "insufficient"
     assert any(
-        n.startswith("partial calibration: the positions cannot separate") for n in res.notes
+        n.startswith("partial calibration: the positions cannot fully separate") for n in res.notes
     )
     core = [res.status[f"{s}.{t}"] for s in sensors for t in ("scale", "bias")]
     assert any((c == "held").any() for c in core) and any((c == "estimated").any() for c in core)

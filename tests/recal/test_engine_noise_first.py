@@ -37,10 +37,16 @@ def test_gyro_without_noise_columns_is_decided_on_the_estimated_noise():
     assert any("no *_std or *_sem columns" in n for n in res.notes)
 
 
-def test_heading_only_design_without_noise_columns_is_refused_on_the_estimated_noise():
+def test_heading_only_design_without_noise_columns_is_partial_on_the_estimated_noise():
+    """Decided on the noise estimated from a fit, not on a guess: the vertical axis's scale
+    cannot be told from its bias, so it is held (a partial calibration, conventions section 8)."""
     pos = simulate_positions(CoefficientSet.seed_truth(), "vessel", 40, sensors=("gyro",), seed=1)
-    with pytest.raises(RecalInputError, match="on the estimated noise: the positions cannot sep"):
-        calibrate(_without(pos, "_std"), CalibrationOptions(sensor="gyro"))
+    res = calibrate(_without(pos, "_std"), CalibrationOptions(sensor="gyro"))
+    assert res.observability.noise_decided and res.observability.verdict == "insufficient"
+    assert res.problem.sigma_source == {"gyro_norm": "residuals"}
+    assert res.status["gyro.scale"][2] == "held"
+    assert any(n.startswith("partial calibration: the positions cannot fully separate")
+               for n in res.notes)  # fmt: skip
 
 
 def test_noise_source_is_named_and_sem_columns_take_precedence():

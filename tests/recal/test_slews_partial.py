@@ -27,7 +27,7 @@ def test_four_handheld_poses_give_a_partial_calibration(tmp_path, capsys):
     assert rc == 0, text.err  # was exit 2: "unusable design ... (rank 9 of 27)"
     doc = json.loads(text.out)
     assert doc["observability"]["verdict"] == "insufficient"  # a gate will not publish it
-    assert any(n.startswith("partial calibration: the positions cannot separate") for n in
+    assert any(n.startswith("partial calibration: the positions cannot fully separate") for n in
                doc["notes"])  # fmt: skip
     status = doc["status"]
     assert "held" in status["accel"]["scale"] and "estimated" in status["accel"]["scale"]
@@ -38,6 +38,8 @@ def test_four_handheld_poses_give_a_partial_calibration(tmp_path, capsys):
         got = np.array(doc["coefficients"][sensor][term])
         sd = np.array(doc["uncertainty"][sensor][term])
         assert np.all(np.abs(got - truth.values[key]) < 3 * sd), (key, got, sd)
-    # the gyro scale is near the datasheet's 131 counts/(deg/s), as the slews show it
+    # the gyro scale is near the datasheet's 131 counts/(deg/s), as three slews show it: to a
+    # few % (4.9 % 1-sigma on x here; ten poses give 0.2 %, tests/test_cli_handheld.py)
     k = np.array(doc["coefficients"]["gyro"]["scale"]) * 3600
-    assert np.all(np.abs(k / 131.0 - 1) < 0.06)
+    sd = np.array(doc["uncertainty"]["gyro"]["scale"]) * 3600
+    assert np.all(sd / k < 0.06) and np.all(np.abs(k / 131.0 - 1) < 0.10)
