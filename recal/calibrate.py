@@ -68,6 +68,19 @@ SLEW_GYRO_MISALIGNMENT_TYPICAL = 1e-2
 SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G = 0.01 * 3600.0
 
 
+#: What the Monte Carlo spread means (the JSON's mc.kind): each run on perturbed data ...
+MC_KIND = (
+    "spread over the Monte Carlo runs, each run fitted to the data perturbed by its window noise "
+    "(antithetic pairs): the measurement uncertainty plus the solver's own scatter, a check on "
+    "'uncertainty' (the Gauss-Newton 1-sigma, which the product reports)"
+)
+#: ... or, in paper mode, every run on the same data
+MC_KIND_PAPER = (
+    "spread over the Monte Carlo runs on the same data: solver repeatability, not measurement "
+    "uncertainty (see 'uncertainty')"
+)
+
+
 @dataclass(frozen=True)
 class CalibrationOptions:
     """What to calibrate and how.
@@ -93,13 +106,18 @@ class CalibrationOptions:
     paper: bool = False
     polish: bool = False
     swarm_config: SwarmConfig | None = None
-    cycles: int = 3
+    #: swarm cycles (each re-whitens the phase and, with slews, re-linearises them at the runs'
+    #: mean); 4: with slews 3 left the MC mean ~1 sigma from the minimum (benchmarks/bench_mcs_slews)
+    cycles: int = 4
     indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
     t0_c: float = 25.0
     slews: Slews | None = None  # gyro increments between the windows (recal.slews), or None
     known_rotations: KnownRotations | None = None  # commanded rotations of some slews
     #: heading closure of a closed turn, deg (recal.slews.find_closed_turns); <= 0: none assumed
     turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG
+    #: swarms: linearise the slew invariants about the runs' mean, refreshed every cycle
+    #: (recal.surrogate); paper mode never does
+    linearise_slews: bool = True
     #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
     #: a missing effect can drag the baseline fit there, and the candidates must still be tried
     refuse_at_solution: bool = True
@@ -256,8 +274,7 @@ class CalibrationResult:
                 "cycles": self.mcs.cycles,
                 "mean": split(self.layout, self.mcs.mean).to_json_dict(terms),
                 "std": split(self.layout, self.mcs.std).to_json_dict(terms),
-                "kind": "spread over the Monte Carlo runs: solver repeatability on this data, "
-                "not measurement uncertainty (see 'uncertainty')",
+                "kind": MC_KIND_PAPER if self.method.endswith("(paper mode)") else MC_KIND,
             }
         return out
 
@@ -902,17 +919,21 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical)
 
 
-def check_design(positions: Positions, options: CalibrationOptions | None = None) -> None:
+def check_design(
+    positions: Positions, options: CalibrationOptions | None = None, partial_ok: bool = True
+) -> None:
     """Raise :class:`RecalInputError` when ``calibrate`` would refuse these positions for their
-    design (too few, or orientations that cannot separate scale and bias): at the prior, on the
-    window noise when the positions carry it, else on structural rank alone (the decision on the
-    estimated noise needs a fit). Cheap, so a service can answer a trigger with the reason."""
+    design (nothing can be estimated), or, with ``partial_ok`` False, when it could only give a
+    partial calibration (some scale factor or bias not separable: a gate does not publish it):
+    at the prior, on the window noise when the positions carry it, else on structural rank
+    alone (the decision on the estimated noise needs a fit). Cheap, so a service can answer a
+    trigger with the reason."""
     opt = options or CalibrationOptions()
     su = _set_up(positions, opt)
-    if su.problem.noise_known:
-        _decided(analyze(su.problem, su.theta0, su.typical))
-    else:
-        _decided(analyze(su.problem, su.theta0, su.typical, info_min=0.0))
+    info_min = INFO_MIN if su.problem.noise_known else 0.0
+    report = _decided(analyze(su.problem, su.theta0, su.typical, info_min=info_min))
+    if not partial_ok and report.verdict == "insufficient":
+        raise RecalInputError(f"only a partial calibration: {report.message}")
 
 
 def calibrate(
@@ -980,6 +1001,9 @@ def calibrate(
             opt.cycles,
             progress=progress,
             indicator_threshold=threshold,
+            # paper mode evaluates the exact objective everywhere (slow with slews)
+            linearise=None if opt.paper or not opt.linearise_slews else typical,
+            perturb=not opt.paper,
         )
         theta, evaluations = mcs.mean, evaluations + mcs.evaluations
         if opt.polish:

@@ -13,17 +13,21 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from concurrent.futures import ProcessPoolExecutor, wait
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from recal.perf import tune_allocator
 from recal.phases import Phase
 from recal.problem import Problem
+from recal.surrogate import SurrogateProblem, data_noise, motion_names
 from recal.swarm import SwarmConfig
 
 SWARM_METHODS = ("nafsa", "safsa", "oafsa")
+#: How often the parent reads the forked workers' progress counter, s.
+PROGRESS_POLL_S = 0.25
 
 
 def solver_for(method: str) -> tuple[Callable, type[SwarmConfig]]:
@@ -54,9 +58,11 @@ class MCSResult:
     cycles: int
 
 
-def _phase_objective(problem: Problem, base: np.ndarray, transform: np.ndarray):
+def _phase_objective(problem: Problem | SurrogateProblem, base: np.ndarray, transform: np.ndarray):
     """Objective over phase coordinates X (P, d); ``run`` (P,) says which run's base each row
     belongs to (the swarms evaluate uneven batches: only fish still trying, one centre per run)."""
+    if isinstance(problem, SurrogateProblem):
+        return problem.phase_objective(base, transform)
 
     def f(X: np.ndarray, run: np.ndarray) -> np.ndarray:
         return problem.objective(base[run] + X @ transform.T)
@@ -78,6 +84,12 @@ class _Job:
     indicator_threshold: float
     sizes: tuple[int, ...]  # runs per batch
     seeds: tuple[np.random.SeedSequence, ...]
+    #: (D,) typical changes: linearise the motion invariants about the runs' mean every cycle
+    #: (recal.surrogate); None: the exact objective throughout
+    linearise: np.ndarray | None = None
+    #: each run on its own data, perturbed by the measurement noise (recal.surrogate.data_noise)
+    perturb: bool = False
+    progress_counter: Any = None  # a shared multiprocessing.Value: runs done (fractions)
 
 
 @dataclass(frozen=True)
@@ -93,22 +105,31 @@ def _run_batch(job: _Job, b: int, progress: Callable[[float], None] | None = Non
     problem, R = job.problem, job.sizes[b]
     rng = np.random.default_rng(job.seeds[b])
     base = np.repeat(job.theta0[None], R, axis=0)
-    hist = [problem.objective(base)[:, None]]
+    runs = np.arange(R)
+    noise = data_noise(problem, R, rng) if job.perturb else None
+    model: Problem | SurrogateProblem = problem
+    if job.linearise is not None:
+        model = SurrogateProblem.at(problem, job.theta0, job.linearise, noise)
+    hist = [_exact_objective(model, base, runs)[:, None]]  # each run on its own data
     prev = hist[0][:, 0]
     evaluations = used_cycles = 0
     for cycle in range(job.cycles):
+        if job.linearise is not None:  # the expansion taken where this batch's runs are now
+            if cycle:
+                model = SurrogateProblem.at(problem, base.mean(axis=0), job.linearise, noise)
+            evaluations += model.evaluations
         current = job.phases(base) if callable(job.phases) else job.phases
         for ph in current:
-            f = _phase_objective(problem, base, ph.transform)
+            f = _phase_objective(model, base, ph.transform)
             center = np.zeros((R, ph.transform.shape[1]))
             res = job.solver(f, center, ph.visual, rng, job.config, with_runs=True)
             evaluations += res.evaluations
-            better = res.best_f < problem.objective(base)
+            better = res.best_f < _objective(model, base, runs)
             base = np.where(better[:, None], base + res.best_x @ ph.transform.T, base)
             hist.append(np.minimum.accumulate(res.history[:, 1:], axis=1))
-            if progress:
-                progress(R / (len(current) * job.cycles))
-        now = problem.objective(base)
+            _report(job, progress, R / (len(current) * job.cycles))
+        # the exact objective (each run on its own data) decides the stall
+        now = _exact_objective(model, base, runs)
         used_cycles = cycle + 1
         # seed 000 section 3.3.2: repeat the phases until every run's eq. (14) indicator is
         # below the threshold (the paper uses 1e-8) or the indicator stops improving
@@ -120,6 +141,38 @@ def _run_batch(job: _Job, b: int, progress: Callable[[float], None] | None = Non
         prev = now
     history = np.minimum.accumulate(np.concatenate(hist, axis=1), axis=1)
     return _BatchOutcome(base, problem.objective(base), history, evaluations, used_cycles)
+
+
+def _objective(model: Problem | SurrogateProblem, theta: np.ndarray, runs: np.ndarray):
+    if isinstance(model, SurrogateProblem):
+        return model.objective(theta, runs)
+    return model.objective(theta)
+
+
+def _exact_objective(model: Problem | SurrogateProblem, theta: np.ndarray, runs: np.ndarray):
+    if isinstance(model, SurrogateProblem):
+        return model.exact_objective(theta, runs)
+    return model.objective(theta)
+
+
+def _report(job: _Job, progress: Callable[[float], None] | None, runs: float) -> None:
+    """Runs completed (fractions): to the caller in this process, to the shared counter in a
+    forked worker (the parent polls it)."""
+    if progress is not None:
+        progress(runs)
+    elif job.progress_counter is not None:
+        with job.progress_counter.get_lock():
+            job.progress_counter.value += runs
+
+
+def _surrogate_steps(
+    problem: Problem, theta0: np.ndarray, linearise: np.ndarray | None, perturb: bool
+) -> np.ndarray | None:
+    """The typical changes the surrogate needs, or None when the exact objective serves (no
+    slews to linearise and no perturbation)."""
+    if perturb or (linearise is not None and motion_names(problem)):
+        return np.asarray(linearise if linearise is not None else problem.layout.typical(theta0))
+    return None
 
 
 _FORK_JOB: _Job | None = None  # set in the parent just before forking the workers
@@ -159,6 +212,8 @@ def run_mcs(
     batch: int = 50,
     workers: int | None = None,
     progress: Callable[[float], None] | None = None,
+    linearise: np.ndarray | None = None,
+    perturb: bool = False,
 ) -> MCSResult:
     """Run ``runs`` independent phased optimisations from ``theta0`` and summarise them.
 
@@ -173,7 +228,15 @@ def run_mcs(
     runs and batch -- not on ``workers``, the number of forked processes that run batches side by
     side (default: one per available core, at most one per batch; 1 = in this process).
     ``progress`` receives the number of runs completed (fractions while a batch goes through its
-    phases when running in this process).
+    phases; forked workers count into a shared value the parent polls a few times a second).
+
+    ``linearise`` (D,) typical changes: with slews, the swarms search a
+    :class:`recal.surrogate.SurrogateProblem` whose motion invariants are linearised about the
+    batch's mean, refreshed at the start of every cycle (the static invariants stay exact, and
+    the stall test and the reported objective use the exact problem). Ignored without slews.
+    ``perturb``: every run minimises on its own data set, the measurements perturbed by their
+    noise (antithetic pairs; :func:`recal.surrogate.data_noise`), so the spread over the runs
+    estimates the measurement uncertainty, not only the solver's repeatability.
     """
     tune_allocator()
     solver, config_cls = solver_for(method)
@@ -183,6 +246,7 @@ def run_mcs(
         indicator_threshold,
         tuple(min(batch, runs - b * batch) for b in range(n_batches)),
         tuple(np.random.SeedSequence(seed).spawn(n_batches)),
+        _surrogate_steps(problem, theta0, linearise, perturb), perturb,
     )  # fmt: skip
     workers = _default_workers(n_batches) if workers is None else max(1, min(workers, n_batches))
     outcomes: list[_BatchOutcome] = []
@@ -196,17 +260,21 @@ def run_mcs(
                 outcomes.append(_run_batch(job, b, progress))
     else:
         global _FORK_JOB
-        _FORK_JOB = job
+        ctx = mp.get_context("fork")
+        counter = ctx.Value("d", 0.0) if progress else None  # inherited by the forked workers
+        _FORK_JOB = replace(job, progress_counter=counter)
         try:
-            ctx = mp.get_context("fork")
             with ProcessPoolExecutor(
                 max_workers=workers, mp_context=ctx, initializer=_init_worker
             ) as pool:
                 futures = [pool.submit(_run_forked, b) for b in range(n_batches)]
-                for b, fut in enumerate(futures):
-                    outcomes.append(fut.result())
-                    if progress:
-                        progress(job.sizes[b])
+                pending, reported = set(futures), 0.0
+                while pending:
+                    _, pending = wait(pending, timeout=PROGRESS_POLL_S)
+                    if progress and counter is not None and counter.value > reported:
+                        progress(counter.value - reported)
+                        reported = counter.value
+                outcomes = [fut.result() for fut in futures]
         finally:
             _FORK_JOB = None
     width = max(o.history.shape[1] for o in outcomes)
