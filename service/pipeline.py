@@ -591,7 +591,7 @@ class Scheduler:
                 slews=slews,
             )
             try:  # a design the engine would refuse is refused now, with its reason
-                check_design(positions, options)
+                check_design(positions, options, partial_ok=False)
             except RecalInputError as exc:
                 raise SchedulerRefused(
                     f"the {len(ids)} stored positions cannot be used: {exc}"
