@@ -207,6 +207,11 @@ class CalibrationResult:
                     out[n]["chi2_red"] = float(np.mean(w * w))
             if n == "slew":
                 out[n]["per_slew"] = out[n].pop("per_position")
+                excess = float(self.problem.slew_excess_rad)
+                out[n]["unmodelled_excess_rad"] = excess
+                if noise and excess > 0:  # the floor above includes it: the windows' own too
+                    var = np.clip(self.problem.sigma[n] ** 2 - excess**2, 0, None)
+                    out[n]["window_noise_floor"] = float(np.sqrt(np.mean(var)))
                 out[n]["slews"] = self.problem.n_of(n) // 2
                 out[n]["earth_rate"] = (
                     "removed with the first window's calibrated rest rate"
