@@ -150,7 +150,9 @@ class SchedulerSettings(Section):
     )
     sensor: Literal["gyro", "accel", "both"] = Field("both", description="triads to calibrate")
     method: Literal["lm", "nafsa", "safsa", "oafsa"] = Field(
-        "lm", description="estimator (as recal calibrate --method)"
+        "nafsa",
+        description="estimator (as recal calibrate --method): MCS-NAFSA, the seeds' method, "
+        "by default (seconds with slews, docs/engine.md); lm is the fast fallback",
     )
     mc_runs: int = Field(100, ge=1, description="Monte Carlo runs for the uncertainties")
     use_last_positions: int = Field(

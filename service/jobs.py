@@ -39,6 +39,8 @@ log = logging.getLogger("recal.jobs")
 PARENT_CHECK_S = 0.25
 #: How often the supervisor looks at a running job, s (also the latency of a result).
 POLL_S = 0.1
+#: Least interval between two progress messages of a worker, s.
+PROGRESS_EVERY_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -73,8 +75,28 @@ def die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+_PROGRESS_CONN: Any = None  # in a worker: the pipe to the supervisor
+_PROGRESS_SENT = [0.0]  # monotonic time of the last progress message
+
+
+def report_progress(done: float, total: float) -> None:
+    """From a job function: ``done`` of ``total`` units (Monte Carlo runs) are finished. Sent to
+    the supervisor at most every :data:`PROGRESS_EVERY_S` (and at completion); a no-op outside a
+    worker. :meth:`JobRunner.progress` then shows it."""
+    now = time.monotonic()
+    if _PROGRESS_CONN is None or (now - _PROGRESS_SENT[0] < PROGRESS_EVERY_S and done < total):
+        return
+    _PROGRESS_SENT[0] = now
+    try:
+        _PROGRESS_CONN.send(("progress", (float(done), float(total))))
+    except (OSError, ValueError):  # the supervisor is gone: the parent watch ends this process
+        pass
+
+
 def _worker_main(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
+    global _PROGRESS_CONN
     os.setpgid(0, 0)  # the job's own group: the supervisor kills it whole (swarm children too)
+    _PROGRESS_CONN = conn
     die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -96,6 +118,7 @@ class _Running:
     started: float
     deadline: float
     on_end: Callable[[JobEnd], None]
+    done: tuple[float, float] | None = None  # (done, total) last reported by the worker
 
 
 class JobRunner:
@@ -134,6 +157,17 @@ class JobRunner:
         with self._lock:
             r = self._running
             return None if r is None else time.monotonic() - r.started
+
+    def progress(self) -> dict[str, Any] | None:
+        """The running job: {"job", "elapsed_s", "timeout_s", "done", "total"} (done/total as
+        the worker last reported them, :func:`report_progress`; None before any), or None."""
+        with self._lock:
+            r = self._running
+            if r is None:
+                return None
+            done, total = r.done if r.done is not None else (None, None)
+            return {"job": r.job, "elapsed_s": round(time.monotonic() - r.started, 1),
+                    "timeout_s": self.timeout_s, "done": done, "total": total}  # fmt: skip
 
     def submit(
         self, fn: Callable[..., Any], args: tuple[Any, ...], on_end: Callable[[JobEnd], None]
@@ -231,7 +265,8 @@ class JobRunner:
 
     def _check(self, r: _Running) -> JobEnd | None:
         elapsed = time.monotonic() - r.started
-        if r.conn.poll(POLL_S):
+        status = "progress"
+        while status == "progress" and r.conn.poll(POLL_S):
             try:
                 status, value = r.conn.recv()
             except (EOFError, OSError):  # the pipe closed: the worker died before answering
@@ -240,6 +275,10 @@ class JobRunner:
                 self._reap(r)
                 return JobEnd(r.job, "error", message=f"unreadable job result: {exc}",
                               duration_s=elapsed)  # fmt: skip
+            if status == "progress":
+                with self._lock:
+                    r.done = value
+                continue
             self._reap(r, grace_s=5.0)
             if status == "ok":
                 return JobEnd(r.job, "ok", result=value, duration_s=elapsed)

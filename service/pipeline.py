@@ -36,7 +36,7 @@ from recal.static import (
 from service.config import Settings
 from service.db import StoreError
 from service.events import Events
-from service.jobs import JobEnd, JobRunner
+from service.jobs import JobEnd, JobRunner, report_progress
 
 log = logging.getLogger("recal.pipeline")
 
@@ -418,6 +418,20 @@ class JobOutcome:
     error: str | None = None  # unusable design or bad input: wait for more positions
 
 
+def _mc_progress(options: CalibrationOptions) -> Callable[[float], None] | None:
+    """For a swarm method: a progress callback that forwards the Monte Carlo runs done to the
+    supervisor (service.jobs.report_progress; the API's /health shows them); None for LM."""
+    if options.method == "lm":
+        return None
+    done = [0.0]
+
+    def progress(runs: float) -> None:
+        done[0] += runs
+        report_progress(min(done[0], options.mc_runs), options.mc_runs)
+
+    return progress
+
+
 def calibration_job(
     columns: dict[str, np.ndarray],
     options: CalibrationOptions,
@@ -430,7 +444,9 @@ def calibration_job(
     from service.gate import GateConfig, gate
 
     try:
-        result = calibrate(Positions.from_columns(columns, source="store"), options)
+        result = calibrate(
+            Positions.from_columns(columns, source="store"), options, progress=_mc_progress(options)
+        )
     except RecalInputError as exc:
         return JobOutcome(None, False, [str(exc)], error=str(exc))
     document = result.to_json_dict()
@@ -692,6 +708,8 @@ class Scheduler:
         return {
             "busy": self.busy,
             "running_for_s": self._runner.running_for_s(),
+            # the running job: elapsed time, time limit and Monte Carlo runs done (swarms)
+            "job": self._runner.progress(),
             "supervisor_alive": self._runner.alive,
             "last_job": None
             if end is None

@@ -312,8 +312,15 @@ def _run_calibration(args: argparse.Namespace) -> tuple[CalibrationResult, Calib
         result = calibrate(positions, options)
     else:
         bar = progress_bar(options.mc_runs, f"MCS-{options.method.upper()}")
+        done = [0.0]
+
+        def advance(runs: float) -> None:
+            # the engine reports fractions of runs (a batch's cycles); the bar counts whole runs
+            before, done[0] = done[0], done[0] + runs
+            bar.update(int(done[0]) - int(before))
+
         try:
-            result = calibrate(positions, options, progress=bar.update)
+            result = calibrate(positions, options, progress=advance)
         finally:
             bar.close()
     announce_slews(args, options.slews, result.problem.slews is not None, result.notes)

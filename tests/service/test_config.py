@@ -14,7 +14,7 @@ def test_toml_then_environment_then_keywords(tmp_path, monkeypatch):
     )
     s = load_settings(cfg)
     assert s.device.url == "socket://10.0.0.5:4001" and s.site.latitude_deg == 57.7
-    assert s.device.format == "kvh-a" and s.scheduler.method == "lm"  # defaults kept
+    assert s.device.format == "kvh-a" and s.scheduler.method == "nafsa"  # defaults kept
     monkeypatch.setenv("RECAL_SITE__LATITUDE_DEG", "12.5")
     assert load_settings(cfg).site.latitude_deg == 12.5
     assert load_settings(cfg, site={"latitude_deg": -3.0}).site.latitude_deg == -3.0

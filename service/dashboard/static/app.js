@@ -308,6 +308,14 @@ function renderWindows() {
 }
 
 // ---- health, counters, log ---------------------------------------------------------------------
+// the running job: elapsed time and, for a swarm method, the Monte Carlo runs done
+function jobWord(job) {
+  if (!job) return "yes";
+  const parts = [`${Math.round(job.elapsed_s)} s`];
+  if (isNum(job.done) && isNum(job.total)) parts.push(`MC ${Math.floor(job.done)}/${job.total}`);
+  return `yes (${parts.join(", ")})`;
+}
+
 function renderHealth(h) {
   const pill = $("health");
   pill.textContent = h.status === "ok" ? "health OK" : `health ${h.status.toUpperCase()}`;
@@ -321,7 +329,7 @@ function renderHealth(h) {
     ["windows stored", h.positions], ["current version", h.current_version ?? "-"],
     ["frames", s.frames], ["windows this session", s.windows], ["slews", s.slews],
     ["spooled", s.windows_spooled], ["dropped", s.windows_dropped],
-    ["recalibrating", s.recalibrating === undefined ? "-" : s.recalibrating ? "yes" : "no"],
+    ["recalibrating", s.recalibrating === undefined ? "-" : s.recalibrating ? jobWord(s.scheduler?.job) : "no"],
     ["last job", last ? `${last.status ?? last.state ?? "?"}` : "-"],
     ["uptime", isNum(s.uptime_s) ? (s.uptime_s < 3600 ? `${Math.floor(s.uptime_s / 60)} min` : `${(s.uptime_s / 3600).toFixed(1)} h`) : "-"],
   ];
