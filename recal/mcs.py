@@ -113,6 +113,7 @@ def _run_batch(job: _Job, b: int, progress: Callable[[float], None] | None = Non
     hist = [_exact_objective(model, base, runs)[:, None]]  # each run on its own data
     prev = hist[0][:, 0]
     evaluations = used_cycles = 0
+    reported = 0.0  # runs reported done (fractions)
     for cycle in range(job.cycles):
         if job.linearise is not None:  # the expansion taken where this batch's runs are now
             if cycle:
@@ -127,7 +128,9 @@ def _run_batch(job: _Job, b: int, progress: Callable[[float], None] | None = Non
             better = res.best_f < _objective(model, base, runs)
             base = np.where(better[:, None], base + res.best_x @ ph.transform.T, base)
             hist.append(np.minimum.accumulate(res.history[:, 1:], axis=1))
-            _report(job, progress, R / (len(current) * job.cycles))
+            step = R / (len(current) * job.cycles)
+            _report(job, progress, step)
+            reported += step
         # the exact objective (each run on its own data) decides the stall
         now = _exact_objective(model, base, runs)
         used_cycles = cycle + 1
@@ -139,6 +142,8 @@ def _run_batch(job: _Job, b: int, progress: Callable[[float], None] | None = Non
         if np.all(now >= prev * (1.0 - job.stall_tol)):
             break
         prev = now
+    if R - reported > 1e-9:  # the cycles stopped early: the batch's runs are all done
+        _report(job, progress, R - reported)
     history = np.minimum.accumulate(np.concatenate(hist, axis=1), axis=1)
     return _BatchOutcome(base, problem.objective(base), history, evaluations, used_cycles)
 

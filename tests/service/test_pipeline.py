@@ -1,6 +1,7 @@
 """The service end to end: replay:// port -> pipeline -> SQLite -> gate -> publish -> HTTP."""
 
 import json
+import time
 
 import httpx
 import numpy as np
@@ -79,12 +80,22 @@ def test_daemon_over_a_real_http_server(tmp_path, capture, serve, replay):
         assert http.post("/recalibrate").status_code == 401  # writes need the token
         r = http.post("/recalibrate", headers={"Authorization": f"Bearer {TOKEN}"})
         assert r.status_code == 202
+        # MCS-NAFSA is the default: while it runs /health shows its elapsed time and MC runs
+        seen = None
+        while service.scheduler.busy:
+            job = http.get("/health").json()["service"]["scheduler"]["job"]
+            if job is not None and job["done"] is not None:
+                seen = job
+            time.sleep(0.2)
+        assert seen is not None and seen["total"] == 100 and 0 <= seen["done"] <= 100
+        assert seen["elapsed_s"] > 0 and seen["timeout_s"] == settings.scheduler.job_timeout_s
         service.scheduler.wait(timeout=120)
         current = http.get("/coefficients")
         assert current.status_code == 200
         doc = current.json()
         version = doc["version"]
         assert doc["accepted"] and len(doc["positions_used"]) == 24
+        assert doc["document"]["method"] == "nafsa" and doc["document"]["mc"]["runs"] == 100
         coeffs = doc["document"]["coefficients"]
         sd = np.array(doc["document"]["uncertainty"]["gyro"]["bias"])
         err = np.array(coeffs["gyro"]["bias"]) - truth.values["gyro.bias"]

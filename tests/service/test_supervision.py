@@ -76,14 +76,18 @@ def test_a_killed_worker_is_recorded_and_the_next_trigger_works(tmp_path, captur
         assert not health["recalibrating"]
         events = [e["message"] for e in service.store.events(limit=20)]
         assert any("failed (died)" in m for m in events)
-        # the next job works (LM this time: quick)
+        # the next job works: the default MCS-NAFSA (100 runs, with the 23 slews) stores a
+        # version within the 120 s of issue 19
         service.scheduler._settings = settings.model_copy(
-            update={"scheduler": settings.scheduler.model_copy(update={"method": "lm"})}
+            update={"scheduler": settings.scheduler.model_copy(update={"mc_runs": 100})}
         )
         service.scheduler.trigger("manual")
         outcome = service.scheduler.wait(timeout=120)
         assert outcome is not None and outcome.document is not None
         assert service.scheduler.last_end.status == "ok"
+        assert outcome.document["method"] == "nafsa" and outcome.document["mc"]["runs"] == 100
+        assert "slew" in outcome.document["residuals"]
+        assert service.store.current() is not None  # the version is stored
     finally:
         service.close(wait_s=0)
 
