@@ -115,9 +115,6 @@ class CalibrationOptions:
     known_rotations: KnownRotations | None = None  # commanded rotations of some slews
     #: heading closure of a closed turn, deg (recal.slews.find_closed_turns); <= 0: none assumed
     turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG
-    #: swarms: linearise the slew invariants about the runs' mean, refreshed every cycle
-    #: (recal.surrogate); paper mode never does
-    linearise_slews: bool = True
     #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
     #: a missing effect can drag the baseline fit there, and the candidates must still be tried
     refuse_at_solution: bool = True
@@ -1006,8 +1003,9 @@ def calibrate(
             opt.cycles,
             progress=progress,
             indicator_threshold=threshold,
-            # paper mode evaluates the exact objective everywhere (slow with slews)
-            linearise=None if opt.paper or not opt.linearise_slews else typical,
+            # the slews linearised about the runs' mean every cycle, each run on its own
+            # perturbed data (recal.surrogate); paper mode: the exact objective, the same data
+            linearise=None if opt.paper else typical,
             perturb=not opt.paper,
         )
         theta, evaluations = mcs.mean, evaluations + mcs.evaluations
