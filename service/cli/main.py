@@ -26,6 +26,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "diagnose",
     "positions",
     "noise",
+    "drift",
     "navigate",
     "predict",
     "record",
