@@ -189,12 +189,16 @@ def main() -> None:
     ap.add_argument("--positions", type=int, nargs="+", default=[12, 30, 60])
     ap.add_argument("--mc", type=int, default=100, help="Monte Carlo runs (default: calibrate's)")
     args = ap.parse_args()
-    print(f"# MCS-NAFSA with slews vs LM ({os.cpu_count()} cores, {args.sets} sets per size, "
-          f"--mc {args.mc}, KVH-like captures through `recal positions`)\n")  # fmt: skip
+    load = os.getloadavg()[0]
+    print(f"# MCS-NAFSA with slews vs LM ({os.cpu_count()} cores, load average {load:.1f} at "
+          f"the start, {args.sets} sets per size, --mc {args.mc}, KVH-like captures through "
+          "`recal positions`)\n")  # fmt: skip
     results = {}
     with tempfile.TemporaryDirectory(prefix="bench-mcs-slews-") as tmp:
         for n in args.positions:
             results[n] = run_size(n, args.sets, args.mc, Path(tmp))
+    # another process's load slows the two forked workers more than single-threaded LM
+    print(f"(load average at the end {os.getloadavg()[0]:.1f}; times are medians)\n")
     print("| positions + slews | LM (s) | MCS-NAFSA (s) | ratio | target | verdict |")
     print("|---|---|---|---|---|---|")
     for n, r in results.items():

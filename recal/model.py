@@ -141,8 +141,8 @@ class Model:
         u = [output[None, :, i] / gain[..., i] - offset[..., i] for i in range(3)]
         x = _apply3_components(Ainv, u)
         for _ in range(NONLINEAR_STEPS if nonlinear else 0):
-            h = sum(t.nonlinear(p, np.stack(x, axis=-1), ctx) for t, p in nonlinear)
-            x = _apply3_components(Ainv, [u[i] - h[..., i] for i in range(3)])
+            hs = [t.nonlinear_components(p, x, ctx) for t, p in nonlinear]
+            x = _apply3_components(Ainv, [u[i] - sum(h[i] for h in hs) for i in range(3)])
         return np.stack(x)
 
     def inverse(self, theta: np.ndarray, output: np.ndarray, ctx: Context) -> np.ndarray:

@@ -126,6 +126,15 @@ class Term:
         """Additive term that depends on the true input x (P, M, 3), in input units."""
         return None
 
+    def nonlinear_components(
+        self, p: np.ndarray, x: list[np.ndarray], ctx: Context
+    ) -> list[np.ndarray]:
+        """:meth:`nonlinear` on component-major input: x as three (P, M) arrays, the result
+        likewise. The default stacks; a per-axis term overrides it to stay on contiguous memory
+        (the swarms' hot path, :meth:`recal.model.Model.inverse_components`)."""
+        h = self.nonlinear(p, np.stack(x, axis=-1), ctx)
+        return [h[..., i] for i in range(3)]
+
 
 def _per_axis(p: np.ndarray) -> np.ndarray:
     """(P, 3) per-axis parameters as (P, 1, 3) so they broadcast over positions."""
@@ -170,6 +179,11 @@ class QuadraticTerm(Term):
 
     def nonlinear(self, p: np.ndarray, x: np.ndarray, ctx: Context) -> np.ndarray:
         return _per_axis(p) * x * x
+
+    def nonlinear_components(
+        self, p: np.ndarray, x: list[np.ndarray], ctx: Context
+    ) -> list[np.ndarray]:
+        return [p[:, i, None] * x[i] * x[i] for i in range(3)]  # the same products, per axis
 
 
 # ------------------------------------------------------------------ catalogue effects (section 7)
