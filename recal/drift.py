@@ -65,6 +65,13 @@ INVARIANTS = ("gyro_norm", "accel_norm", "dot")
 REQUIRED_TERMS = ("scale", "bias")
 #: Finite-difference step of A_k in units of each coefficient's typical change.
 FD_STEP = 1e-3
+#: Windows the threshold's null simulation covers at most (recal.drift.null_threshold).
+NULL_WINDOWS = 120
+#: Exceedances of the threshold the null simulation expects at least, and its run limits.
+NULL_EXCEEDANCES = 50
+NULL_MIN_RUNS = 1000
+NULL_MAX_RUNS = 20000
+NULL_BATCH = 1000
 #: Plain CUSUM baseline (:func:`plain_cusum`): reference value k in sigma of one window.
 PLAIN_CUSUM_K = 0.5
 
@@ -81,6 +88,8 @@ class DriftConfig:
 
     false_alarm_windows: float = 720.0
     lookback: int = 30
+    seed: int = 0
+    watch: tuple[str, ...] = ("scale", "bias", "misalignment", "quadratic")
 
     @classmethod
     def per_days(cls, days: float, windows_per_day: float, lookback: int = 30) -> DriftConfig:
@@ -133,6 +142,8 @@ class DriftResult:
     suspects: list[dict[str, Any]] = field(default_factory=list)
     directions: int = 0  # D in the threshold
     config: DriftConfig = field(default_factory=DriftConfig)
+    threshold_bound: float = float("nan")  # the union bound (an upper limit of the threshold)
+    null_runs: int = 0  # null sequences simulated for the threshold (0: the union bound)
 
 
 # ---- inputs --------------------------------------------------------------------------------
@@ -334,55 +345,151 @@ def drift_test(inputs: DriftInputs, config: DriftConfig | None = None) -> DriftR
     # a coefficient is a direction only where the windows see it at all
     info_all = np.einsum("mid,mid->d", C, C)
     seen = info_all > 1e-12 * max(info_all.max(), 1e-300)
-    h = threshold(config, int(seen.sum()))
+    seen &= np.array([n.split(".")[1] in config.watch for n in inputs.names])
     # square root of the coefficient covariance (it may be singular: held, exact)
     lam, V = np.linalg.eigh(inputs.coeff_cov)
     Lp = V * np.sqrt(np.clip(lam, 0.0, None))
-    S = np.concatenate([np.zeros((1, D)), np.cumsum(np.einsum("mid,mi->md", C, w), axis=0)])
     F = np.concatenate([np.zeros((1, D, D)), np.cumsum(np.einsum("mid,mie->mde", C, C), axis=0)])
-    stat = np.zeros(M)
-    tau_best = np.zeros(M, int)
-    j_best = np.zeros(M, int)
-    change = np.zeros(M)
-    change_sd = np.zeros(M)
-    alarm = None
+    S = np.concatenate([np.zeros((1, D)), np.cumsum(np.einsum("mid,mi->md", C, w), axis=0)])
+    stats, flat = _scan(S[None], F, Lp, seen, config.lookback)
+    stat, flat = stats[0], flat[0]
+    bound = threshold(config, int(seen.sum()))
+    h, runs = null_threshold(C, F, Lp, seen, config, bound)
+    alarm = next((n for n in range(M) if stat[n] > h), None)
+    tau_best = np.array(
+        [max(0, n - config.lookback + 1) + int(f) // D for n, f in enumerate(flat)], int
+    )
+    j_best = flat % D
+    change, change_sd = np.zeros(M), np.full(M, np.inf)
     for n in range(M):
-        tau = np.arange(max(0, n - config.lookback + 1), n + 1)
-        z, info = _score(S, F, Lp, n, tau)  # (T, D), (T, D)
-        ok = seen & (info > 1e-12 * max(info.max(), 1e-300))
-        ratio = np.where(ok, z * z / np.where(ok, info, 1.0), 0.0)
-        t, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
-        stat[n], tau_best[n], j_best[n] = ratio[t, j], tau[t], j
-        change[n] = z[t, j] / info[t, j] if ok[t, j] else 0.0
-        change_sd[n] = 1.0 / np.sqrt(info[t, j]) if ok[t, j] else np.inf
-        if alarm is None and stat[n] > h:
-            alarm = n
+        z, info = _score(S, F, Lp, n, tau_best[n : n + 1])
+        j = j_best[n]
+        if info[0, j] > 0:
+            change[n], change_sd[n] = z[0, j] / info[0, j], 1.0 / np.sqrt(info[0, j])
     result = DriftResult(stat, h, alarm, tau_best, j_best, change, change_sd,
-                         directions=int(seen.sum()), config=config)  # fmt: skip
+                         directions=int(seen.sum()), config=config, threshold_bound=bound,
+                         null_runs=runs)  # fmt: skip
     at = alarm if alarm is not None else int(np.argmax(stat)) if M else None
     if at is not None:
         result.suspects = suspects(inputs, S, F, Lp, at, int(tau_best[at]), seen)
     return result
 
 
-def _score(
-    S: np.ndarray, F: np.ndarray, Lp: np.ndarray, n: int, tau: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Score z and information diag(I) of a step in each coefficient at each ``tau`` given
-    windows 0..n, with the common coefficient error (covariance Lp Lp^T) projected out.
+def _parts(F: np.ndarray, Lp: np.ndarray, n: int, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """G K (T, D, D) and diag(I) (T, D) for a step at each ``tau`` seen by window ``n``.
 
     With whitened windows the stacked covariance is I + B B^T, B = C Lp; by Woodbury its inverse
     is I - B (I + B^T B)^-1 B^T, so for a step signature a = C e_j on windows tau..n:
     z = a^T Sigma^-1 w = (S_n - S_tau) - G K S_n and I = G - G K G, with G = F_n - F_tau the
     information from tau on, K = Lp (I + Lp^T F_n Lp)^-1 Lp^T."""
-    D = S.shape[1]
     Mn = np.eye(Lp.shape[1]) + Lp.T @ F[n + 1] @ Lp
     K = Lp @ np.linalg.solve(Mn, Lp.T)
     G = F[n + 1][None] - F[tau]  # (T, D, D)
     GK = G @ K
-    z = (S[n + 1][None] - S[tau]) - GK @ S[n + 1]
     info = np.einsum("tdd->td", G) - np.einsum("tde,ted->td", GK, G)
-    return z, np.maximum(info, 0.0).reshape(len(tau), D)
+    return GK, np.maximum(info, 0.0)
+
+
+def _score(
+    S: np.ndarray, F: np.ndarray, Lp: np.ndarray, n: int, tau: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Score z (T, D) and information diag(I) (T, D) of a step in each coefficient at each
+    ``tau`` given windows 0..n, with the common coefficient error projected out (:func:`_parts`)."""
+    GK, info = _parts(F, Lp, n, tau)
+    z = (S[n + 1][None] - S[tau]) - GK @ S[n + 1]
+    return z, info
+
+
+def _scan(
+    S: np.ndarray,
+    F: np.ndarray,
+    Lp: np.ndarray,
+    seen: np.ndarray,
+    lookback: int,
+    where: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """T_n for a batch of score sequences S (P, M+1, D): (P, M) statistics and, with ``where``,
+    (P, M) flat index t * D + j of the maximising (change window offset t, coefficient j)."""
+    P, M, D = S.shape[0], S.shape[1] - 1, S.shape[2]
+    stat = np.zeros((P, M))
+    arg = np.zeros((P, M), int) if where else None
+    for n in range(M):
+        tau = np.arange(max(0, n - lookback + 1), n + 1)
+        GK, info = _parts(F, Lp, n, tau)
+        T = tau.size
+        ok = seen & (info > 1e-12 * max(info.max(), 1e-300))
+        inv = np.where(ok, 1.0 / np.where(ok, info, 1.0), 0.0).reshape(T * D)
+        z = (S[:, n + 1, None, :] - S[:, tau, :]).reshape(P, T * D)
+        z -= S[:, n + 1] @ GK.reshape(T * D, D).T
+        z *= z
+        z *= inv
+        if arg is None:
+            stat[:, n] = z.max(axis=1)
+        else:
+            arg[:, n] = np.argmax(z, axis=1)
+            stat[:, n] = z[np.arange(P), arg[:, n]]
+    return stat, arg
+
+
+def null_threshold(
+    C: np.ndarray,
+    F: np.ndarray,
+    Lp: np.ndarray,
+    seen: np.ndarray,
+    config: DriftConfig,
+    bound: float,
+) -> tuple[float, int]:
+    """The threshold at the configured false-alarm rate for these windows, and the simulated
+    runs it took (0: the union bound ``bound`` was used).
+
+    Under no change the whitened windows are w = e + C Lp eta (e, eta standard normal: the
+    window noise and the coefficients' own error). One false alarm per N = false_alarm_windows
+    windows means, over the first L = min(M, NULL_WINDOWS) windows, P(max_{n<L} T_n > h) =
+    q = 1 - exp(-L / N): h is the 1 - q quantile of max_n T_n over simulated null sequences of
+    exactly these windows (fixed seed: the same input gives the same threshold). Never above
+    the union bound; the bound itself when q is too small to simulate (fewer than
+    NULL_EXCEEDANCES exceedances expected in NULL_MAX_RUNS runs)."""
+    M = C.shape[0]
+    L = min(M, NULL_WINDOWS)
+    if L == 0:
+        return bound, 0
+    q = -np.expm1(-L / config.false_alarm_windows)
+    runs = int(np.ceil(NULL_EXCEEDANCES / q))
+    if runs > NULL_MAX_RUNS:
+        return bound, 0
+    runs = max(runs, NULL_MIN_RUNS)
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(config.seed)
+    dF = F[1 : L + 1] - F[:L]  # (L, D, D) per-window information
+    # small products: BLAS threads only contend (4x slower on a loaded 2-core machine)
+    with threadpool_limits(1, user_api="blas"):
+        maxima = _null_maxima(C[:L], dF, F[: L + 1], Lp, seen, config, runs, rng)
+    h = float(np.quantile(maxima, 1.0 - q))
+    return min(h, bound), runs
+
+
+def _null_maxima(
+    C: np.ndarray,
+    dF: np.ndarray,
+    F: np.ndarray,
+    Lp: np.ndarray,
+    seen: np.ndarray,
+    config: DriftConfig,
+    runs: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """max_n T_n of ``runs`` simulated null sequences of the windows C (L, 3, D)."""
+    L, D = C.shape[0], C.shape[2]
+    maxima = []
+    for start in range(0, runs, NULL_BATCH):
+        P = min(NULL_BATCH, runs - start)
+        e = rng.standard_normal((P, L, 3))
+        eta = rng.standard_normal((P, Lp.shape[1])) @ Lp.T  # (P, D) coefficient errors
+        u = np.einsum("mid,pmi->pmd", C, e) + np.einsum("mde,pe->pmd", dF, eta)
+        S = np.concatenate([np.zeros((P, 1, D)), np.cumsum(u, axis=1)], axis=1)
+        maxima.append(_scan(S, F, Lp, seen, config.lookback, False)[0].max(axis=1))
+    return np.concatenate(maxima)
 
 
 def suspects(
