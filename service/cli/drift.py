@@ -129,6 +129,8 @@ def to_json(inputs, result) -> dict[str, Any]:
     return {
         "alarm_window": result.alarm_window,
         "threshold": result.threshold,
+        "threshold_bound": result.threshold_bound,
+        "threshold_runs": result.null_runs,
         "statistic": "GLR of a step in one coefficient, max over the change window and the "
         "coefficient (chi-square, 1 degree of freedom, under no change)",
         "false_alarm_windows": result.config.false_alarm_windows,
@@ -146,9 +148,14 @@ def text_summary(out: dict[str, Any]) -> str:
         mark = "  ALARM" if w["alarm"] else ""
         lines.append(f"{w['row']:>4} {w['statistic']:>10.2f}  {w['coefficient']} "
                      f"(from row {w['change_window']}){mark}")  # fmt: skip
+    how = (
+        f"simulated null, {out['threshold_runs']} runs; union bound {out['threshold_bound']:.2f}"
+        if out["threshold_runs"]
+        else "union bound"
+    )
     lines.append(
         f"threshold {out['threshold']:.2f} (one false alarm per {out['false_alarm_windows']:g} "
-        f"windows, {out['lookback']} change windows x {out['directions']} coefficients)"
+        f"windows; {out['lookback']} change windows x {out['directions']} coefficients; {how})"
     )
     alarm = out["alarm_window"]
     lines.append(f"first alarm: {'none' if alarm is None else f'row {alarm}'}")
