@@ -55,7 +55,7 @@ coefficients, :func:`drift_test` runs the sequential test on them.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -157,13 +157,14 @@ class DriftResult:
 def drift_inputs(
     positions: Positions,
     coefficients: CoefficientSet,
-    covariance: np.ndarray | None = None,
+    covariance: np.ndarray | Mapping[str, Any] | None = None,
     latitude_deg: float = 45.0,
     height_m: float = 0.0,
 ) -> DriftInputs:
     """Residuals, noise, signatures and coefficient covariance of ``positions`` at
-    ``coefficients``. ``covariance`` (D, D) in the layout of the tested triads (a
-    :class:`~recal.calibrate.CalibrationResult`'s, when it covers the same triads); without it,
+    ``coefficients``. ``covariance``: (D, D) in the layout of the tested triads (a
+    :class:`~recal.calibrate.CalibrationResult`'s, when it covers the same triads), or a
+    coefficients file's ``"covariance"`` block (names + matrix); without it,
     ``coefficients.uncertainty`` as a diagonal (unknown sigma: 0, with a note)."""
     from recal.calibrate import build_models
     from recal.model import ParameterLayout
@@ -296,10 +297,16 @@ def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) ->
 
 
 def _coefficient_cov(
-    coefficients: CoefficientSet, layout, covariance: np.ndarray | None, notes: list[str]
+    coefficients: CoefficientSet,
+    layout,
+    covariance: np.ndarray | Mapping[str, Any] | None,
+    notes: list[str],
 ) -> np.ndarray:
+    """(D, D) covariance of the accepted coefficients in ``layout``'s order: ``covariance`` as an
+    array in that order, or as the coefficients file's ``"covariance"`` block (names + matrix,
+    :func:`covariance_to_json`), else the 1-sigma values as a diagonal."""
     D = layout.size
-    if covariance is not None:
+    if covariance is not None and not isinstance(covariance, Mapping):
         cov = np.asarray(covariance, float)
         if cov.shape != (D, D):
             raise RecalInputError(f"coefficient covariance is {cov.shape}, expected ({D}, {D})")
@@ -309,6 +316,8 @@ def _coefficient_cov(
         u = coefficients.uncertainty.get(name)
         if u is not None and np.size(u) == sl.stop - sl.start:
             sigma[sl] = u
+    if covariance is not None:
+        return _named_cov(covariance, layout.names, sigma, notes)
     if not coefficients.uncertainty:
         notes.append(
             "the coefficients carry no 'uncertainty': taken as exact (their own error then "
@@ -319,10 +328,47 @@ def _coefficient_cov(
         notes.append(f"no uncertainty for {', '.join(unknown)}: taken as exact")
     else:
         notes.append(
-            "coefficient uncertainty from the file's 1-sigma values (a diagonal covariance: "
-            "their correlations are not in the file)"
+            "coefficient uncertainty from the file's 1-sigma values as a diagonal covariance "
+            "(the file has no 'covariance': their correlations are lost)"
         )
     return np.diag(np.nan_to_num(sigma) ** 2)
+
+
+def covariance_to_json(names: Sequence[str], covariance: np.ndarray) -> dict[str, Any]:
+    """The ``"covariance"`` block a coefficients file carries beside its 1-sigma values."""
+    return {
+        "names": list(names),
+        "matrix": np.asarray(covariance, float).tolist(),
+        "kind": "covariance of the flat coefficients (names: term.parameter), units as the "
+        "coefficients",
+    }
+
+
+def _named_cov(
+    block: Mapping[str, Any], names: Sequence[str], sigma: np.ndarray, notes: list[str]
+) -> np.ndarray:
+    """The file's covariance reordered to ``names``; coefficients it lacks keep their 1-sigma
+    (uncorrelated)."""
+    try:
+        have = [str(n) for n in block["names"]]
+        matrix = np.asarray(block["matrix"], float)
+    except (KeyError, TypeError, ValueError):
+        raise RecalInputError("'covariance' must have 'names' and a numeric 'matrix'") from None
+    if matrix.shape != (len(have), len(have)) or not np.isfinite(matrix).all():
+        raise RecalInputError(
+            f"'covariance' matrix must be {len(have)} x {len(have)} finite numbers"
+        )
+    pos = {n: i for i, n in enumerate(have)}
+    idx = np.array([pos.get(n, -1) for n in names])
+    inside = idx >= 0
+    cov = np.diag(np.nan_to_num(sigma) ** 2)
+    sub = matrix[np.ix_(idx[inside], idx[inside])]
+    cov[np.ix_(inside, inside)] = 0.5 * (sub + sub.T)
+    if not inside.all():
+        missing = [n for n, ok in zip(names, inside, strict=True) if not ok]
+        notes.append(f"the file's covariance lacks {', '.join(missing)}: their 1-sigma used")
+    notes.append("coefficient uncertainty from the file's covariance")
+    return cov
 
 
 # ---- the test ------------------------------------------------------------------------------
@@ -376,7 +422,9 @@ def drift_test(inputs: DriftInputs, config: DriftConfig | None = None) -> DriftR
     result = DriftResult(stat, h, alarm, tau_best, j_best, change, change_sd,
                          directions=int(seen.sum()), config=config, threshold_bound=bound,
                          null_runs=runs)  # fmt: skip
-    at = alarm if alarm is not None else int(np.argmax(stat)) if M else None
+    # named with every window so far: at the alarm a few windows often cannot tell a scale from
+    # the same axis's bias (their ratios tie); the windows after it can
+    at = M - 1 if alarm is not None else int(np.argmax(stat)) if M else None
     if at is not None:
         result.suspects = suspects(inputs, S, F, Lp, at, int(tau_best[at]), seen)
     return result
@@ -509,7 +557,8 @@ def suspects(
     seen: np.ndarray,
     top: int = 3,
 ) -> list[dict[str, Any]]:
-    """The coefficients a step at ``tau`` seen at window ``n`` looks like, best first."""
+    """The coefficients a step at ``tau`` seen at window ``n`` looks like, best first; "alike"
+    marks those whose ratio is within 10 % of the best (the windows cannot tell them apart)."""
     z, info = _score(S, F, Lp, n, np.array([tau]))
     z, info = z[0], info[0]
     ok = seen & (info > 1e-12 * max(info.max(), 1e-300))
@@ -526,6 +575,8 @@ def suspects(
             "sigma": float(1.0 / np.sqrt(info[j])),
             "change_window": int(tau),
             "description": describe_change(inputs.names[j], size, inputs.theta[j]),
+            "alike": bool(ratio[j] >= 0.9 * ratio.max()),
+            "window": int(n),
         })  # fmt: skip
     return out
 

@@ -346,8 +346,13 @@ def run(args: argparse.Namespace) -> int:
     doc = result.to_json_dict()
     if check is not None:
         doc["effects_check"] = check
+    # the full covariance beside the 1-sigma values: recal drift whitens with it (docs/drift.md)
+    from recal.drift import covariance_to_json
+
+    doc["covariance"] = covariance_to_json(result.layout.names, result.covariance)
     if args.output:
-        atomic_write(args.output, json.dumps(doc["coefficients"], indent=2) + "\n")
+        coefficients = {**doc["coefficients"], "covariance": doc["covariance"]}
+        atomic_write(args.output, json.dumps(coefficients, indent=2) + "\n")
     if args.report:
         from recal.report import calibration_html
 

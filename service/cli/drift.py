@@ -72,10 +72,10 @@ def run(args: argparse.Namespace) -> int:
     if args.latitude is None:
         print("recal: --latitude not given, assuming 45 deg (gravity and the dot product "
               "depend on it)", file=sys.stderr)  # fmt: skip
-    coefficients = _load(args.coefficients)
+    coefficients, covariance = _load(args.coefficients)
     positions = load_positions(args.positions)
     lat = 45.0 if args.latitude is None else args.latitude
-    inputs = drift_inputs(positions, coefficients, None, lat, args.height)
+    inputs = drift_inputs(positions, coefficients, covariance, lat, args.height)
     result = drift_test(inputs, DriftConfig(args.false_alarm_windows, args.lookback))
     out = to_json(inputs, result)
     if args.report:
@@ -90,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _load(path: str):
-    """A coefficients file, or a ``calibrate --json`` output (its coefficients + uncertainty)."""
+    """A coefficients file, or a ``calibrate --json`` output (its coefficients + uncertainty),
+    and its ``"covariance"`` block (names + matrix) when it has one."""
     from recal.coefficients import CoefficientSet
     from recal.errors import RecalInputError
     from recal.terms import catalogue_terms
@@ -103,10 +104,17 @@ def _load(path: str):
     if isinstance(data, dict) and "coefficients" in data and not {"gyro", "accel"} & set(data):
         inner = data["coefficients"]
         if isinstance(inner, dict):
-            data = {**inner, "uncertainty": inner.get("uncertainty", data.get("uncertainty"))}
+            data = {
+                **inner,
+                "uncertainty": inner.get("uncertainty", data.get("uncertainty")),
+                "covariance": inner.get("covariance", data.get("covariance")),
+            }
     cs = CoefficientSet.from_json_dict(data, catalogue_terms(), source=str(path))
     cs.metadata["source"] = str(path)
-    return cs
+    covariance = data.get("covariance") if isinstance(data, dict) else None
+    if covariance is not None and not isinstance(covariance, dict):
+        raise RecalInputError(f"{path}: 'covariance' must be an object with names and matrix")
+    return cs, covariance
 
 
 def to_json(inputs, result) -> dict[str, Any]:
@@ -163,10 +171,10 @@ def text_summary(out: dict[str, Any]) -> str:
         s = out["suspects"][0]
         lead = "drift looks like" if alarm is not None else "largest change (not significant)"
         lines.append(f"{lead}: {s['description']} (from row {s['change_window']}, "
-                     f"{abs(s['change']) / s['sigma']:.1f} sigma)")  # fmt: skip
-        others = [x["description"] for x in out["suspects"][1:]]
-        if others and alarm is not None:
-            lines.append("or: " + "; ".join(others))
+                     f"{abs(s['change']) / s['sigma']:.1f} sigma, rows up to {s['window']})")  # fmt: skip
+        alike = [x["description"] for x in out["suspects"][1:] if x["alike"]]
+        if alike and alarm is not None:
+            lines.append("or, as likely on these windows: " + "; ".join(alike))
     lines += [f"note: {n}" for n in out["notes"]]
     return "\n".join(lines)
 

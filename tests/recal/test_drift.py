@@ -151,7 +151,7 @@ def test_accel_bias_step_is_found_and_named(fits):
     listed = sum("accel.bias.bx" in x for x in suspects)
     print(f"named first {best}/{len(suspects)}, among the three suspects {listed}")
     # a bias step on few windows also looks like that axis's quadratic term or a misalignment
-    assert best >= 0.6 * len(suspects) and listed >= 0.8 * len(suspects)
+    assert best >= 0.75 * len(suspects) and listed == len(suspects)
 
 
 def test_no_alarm_before_a_step_after_ten_steady_windows(fits):
@@ -190,6 +190,22 @@ def test_file_uncertainty_is_a_diagonal_covariance(fits):
     sd = np.sqrt(np.diag(inp.coeff_cov))
     assert np.allclose(sd, np.sqrt(np.diag(fit.covariance)))
     assert any("diagonal" in n for n in inp.notes)
+
+
+def test_file_covariance_block_round_trips(fits):
+    """calibrate -o writes the covariance by name; read back in another order it is the same."""
+    from recal.drift import covariance_to_json
+
+    fit = fits[0]
+    names = fit.layout.names
+    order = np.arange(len(names))[::-1]
+    block = covariance_to_json([names[i] for i in order], fit.covariance[np.ix_(order, order)])
+    inp = drift_inputs(new_windows(0), fit.coefficients, block, LAT)
+    np.testing.assert_allclose(inp.coeff_cov, fit.covariance, rtol=1e-12, atol=1e-30)
+    assert inp.notes == ("coefficient uncertainty from the file's covariance",)
+    block["names"] = block["names"][:-1]
+    with pytest.raises(RecalInputError, match="matrix must be 26 x 26"):
+        drift_inputs(new_windows(0), fit.coefficients, block, LAT)
 
 
 def test_missing_triad_and_noise_are_input_errors(fits):
