@@ -9,8 +9,9 @@ new windows from the same truth (steady) or with a step before the first new win
 scale +600 ppm, or accel x bias +5 micro-g. Acceptance (issue 20): steady, at most one alarm in
 20 sessions; gyro step found within 15 windows, accel step within 11; never before the step.
 
-Columns: "GLR, calibrate's covariance" (the test as the daemon runs it), "GLR, file's 1-sigma"
-(as ``recal drift`` runs it on a coefficients file: a diagonal covariance), "GLR, coefficients
+Columns: "GLR, with the covariance" (calibrate's full covariance: the daemon, and ``recal drift``
+on a file ``calibrate -o`` wrote), "GLR, 1-sigma only" (a coefficients file without its
+covariance: the 1-sigma values as a diagonal), "GLR, coefficients
 exact" (covariance zero) and "plain CUSUM" (``recal.drift.plain_cusum``: the three invariants
 whitened by each window's noise alone). "lambda" is the information a single test that knew the
 change window and the coefficient would have by the acceptance window (noncentrality
@@ -58,6 +59,12 @@ def stepped(truth: CoefficientSet, step) -> CoefficientSet:
     return out
 
 
+def true_name(step) -> str:
+    """The flat name of the stepped coefficient ("gyro.scale.Kx")."""
+    name, axis = step[0], step[1]
+    return f"{name}.{'K' if name.endswith('scale') else 'b'}{'xyz'[axis]}"
+
+
 def oracle_lambda(inputs, step, fit) -> float:
     """Delta^2 I_jj of the true step (tau = 0, the stepped coefficient) by the acceptance window."""
     name, axis, size, within = step
@@ -86,13 +93,13 @@ def main() -> None:
     for s in range(args.seeds):
         pos = simulate_positions(truth, "random", 30, latitude_deg=LAT, seed=1000 + s)
         fits.append(calibrate(pos, CalibrationOptions(latitude_deg=LAT)))
-    kinds = ("GLR, calibrate's covariance", "GLR, file's 1-sigma", "GLR, coefficients exact",
+    kinds = ("GLR, with the covariance", "GLR, 1-sigma only (diagonal)", "GLR, coefficients exact",
              "plain CUSUM")  # fmt: skip
     print(f"{args.seeds} sessions: 30 windows fitted, 30 new; one false alarm per "
           f"{cfg.false_alarm_windows:g} windows configured")  # fmt: skip
     for label, step in STEPS.items():
         alarms: dict[str, list] = {k: [] for k in kinds}
-        thresholds, lams = [], []
+        thresholds, lams, named = [], [], []
         for s, fit in enumerate(fits):
             t = truth if step is None else stepped(truth, step)
             new = simulate_positions(t, "random", 30, latitude_deg=LAT, seed=2000 + s)
@@ -100,6 +107,8 @@ def main() -> None:
             r = drift_test(full, cfg)
             thresholds.append(r.threshold)
             alarms[kinds[0]].append(r.alarm_window)
+            if step is not None and r.alarm_window is not None:
+                named.append(r.suspects[0]["coefficient"] == true_name(step))
             diag = drift_inputs(new, fit.coefficients, None, LAT)
             alarms[kinds[1]].append(drift_test(diag, cfg).alarm_window)
             exact = drift_inputs(new, fit.coefficients, 0 * fit.covariance, LAT)
@@ -119,6 +128,10 @@ def main() -> None:
             med = f"{np.median(found):.0f}" if found else "-"
             print(f"  {k:30s} within {within} windows {hit:2d}/{len(a)}; found {len(found):2d}, "
                   f"misses {len(a) - len(found):2d}; median alarm row {med}")  # fmt: skip
+        if named:
+            print(
+                f"  named right (first suspect, GLR with the covariance): {sum(named)}/{len(named)}"
+            )
         if lams:
             print(f"  lambda by window {step[3]} (one known test): median {np.median(lams):.1f}, "
                   f"10-90 % {np.quantile(lams, 0.1):.1f}-{np.quantile(lams, 0.9):.1f}")  # fmt: skip
