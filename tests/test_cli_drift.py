@@ -136,3 +136,11 @@ def test_bad_input_is_exit_2_with_one_line(files, capsys, tmp_path):
         capsys, files / "steady.csv", "--coefficients", c, "--false-alarm-windows", "1",
         "--latitude", LAT,
     )  # fmt: skip
+
+
+def test_a_wrong_latitude_alarms_at_once_and_says_why(files, capsys):
+    rc, out, _ = run(capsys, files / "steady.csv", "--coefficients", files / "c.json",
+                     "--latitude", "30", "--json")  # fmt: skip
+    doc = json.loads(out)
+    assert rc == 0 and doc["alarm_window"] == 0
+    assert any("check --latitude" in n for n in doc["notes"])

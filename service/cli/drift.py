@@ -17,6 +17,9 @@ import json
 import sys
 from typing import Any
 
+#: An alarm before this row is more likely coefficients that never fitted than a change.
+EARLY_ALARM_ROWS = 2
+
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
@@ -78,6 +81,12 @@ def run(args: argparse.Namespace) -> int:
     inputs = drift_inputs(positions, coefficients, covariance, lat, args.height)
     result = drift_test(inputs, DriftConfig(args.false_alarm_windows, args.lookback))
     out = to_json(inputs, result)
+    if result.alarm_window is not None and result.alarm_window < EARLY_ALARM_ROWS:
+        out["notes"].append(
+            f"drift declared at row {result.alarm_window}, on the first windows: the coefficients "
+            "may not describe these windows at all (check --latitude, the units, and that the "
+            "calibration fitted its own windows: its chi2_red)"
+        )
     if args.report:
         atomic_write(args.report, report_html(out, f"recal drift {args.positions}"))
     if args.json:
