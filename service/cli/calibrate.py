@@ -389,11 +389,17 @@ def format_result(r: CalibrationResult) -> str:
         partial = status[i] == "estimated" and r.observability.share[i] < 0.99
         state = "estimated*" if partial else status[i]
         lines.append(f"{name:34s} {r.theta[i]:16.9g} {sig} {mc} {state:10s} [{unit}]")
-    if r.mcs is not None:
+    if r.mcs is not None and r.method.endswith("(paper mode)"):
         lines.append(
             f"MC std: the spread of the coefficient over the {r.mcs.runs.shape[0]} Monte Carlo "
             "runs of the swarm (seed 000's MCS): how repeatably the solver lands on these "
             "windows, not how well they determine the coefficient (that is 1-sigma)"
+        )
+    elif r.mcs is not None:
+        lines.append(
+            f"MC std: the spread of the coefficient over the {r.mcs.runs.shape[0]} Monte Carlo "
+            "runs of the swarm (seed 000's MCS), each fitted to the windows perturbed by their "
+            "noise: a check on 1-sigma (the reported uncertainty), plus the solver's own scatter"
         )
     lines.append("")
     lines.append(f"{'invariant':12s} {'RMS before':>12s} {'RMS after':>12s} {'noise floor':>12s}")
