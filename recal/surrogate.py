@@ -144,15 +144,7 @@ class SurrogateProblem:
 
     def _static_objective(self, theta: np.ndarray, run: np.ndarray | None) -> np.ndarray:
         """:meth:`Problem.objective` of the static invariants, run ``run``'s noise added."""
-        if self.noise is None or run is None:
-            return self.static.objective(theta)
-        st = self.static
-        floor = st._floor
-        total = 0.0
-        for n, sq in st.squared_residuals(theta).items():
-            sq = sq + self.noise[n][run]
-            total = total + np.einsum("pm,pm->p", sq, sq) / (max(st.n_of(n) - 1, 1) * floor[n] ** 2)
-        return np.where(np.isfinite(total), total, np.inf)
+        return self._perturbed(self.static, theta, run)
 
     def objective(self, theta: np.ndarray, run: np.ndarray | None = None) -> np.ndarray:
         """:meth:`Problem.objective` with the motion part linearised, (P,); ``run`` (P,): the
@@ -162,14 +154,19 @@ class SurrogateProblem:
 
     def exact_objective(self, theta: np.ndarray, run: np.ndarray | None = None) -> np.ndarray:
         """The exact objective (motion invariants integrated), each run on its perturbed data."""
+        return self._perturbed(self.exact, theta, run)
+
+    def _perturbed(self, problem: Problem, theta: np.ndarray, run: np.ndarray | None) -> np.ndarray:
+        """``problem``'s objective with run ``run``'s noise added to its squared residuals."""
         if self.noise is None or run is None:
-            return self.exact.objective(theta)
-        ex = self.exact
-        floor = ex._floor
+            return problem.objective(theta)
+        floor = problem._floor
         total = 0.0
-        for n, sq in ex.squared_residuals(theta).items():
+        for n, sq in problem.squared_residuals(theta).items():
             sq = sq + self.noise[n][run]
-            total = total + np.einsum("pm,pm->p", sq, sq) / (max(ex.n_of(n) - 1, 1) * floor[n] ** 2)
+            total = total + np.einsum("pm,pm->p", sq, sq) / (
+                max(problem.n_of(n) - 1, 1) * floor[n] ** 2
+            )
         return np.where(np.isfinite(total), total, np.inf)
 
     def phase_objective(

@@ -19,6 +19,18 @@ if TYPE_CHECKING:
 METHODS = ("lm", "nafsa", "safsa", "oafsa")
 
 
+def add_site_options(p: argparse.ArgumentParser) -> None:
+    """--latitude (default 45 with a warning) and --height: where the unit was, for gravity and
+    Earth rate."""
+    p.add_argument(
+        "--latitude",
+        type=float,
+        default=None,
+        help="site latitude, deg (default 45 with a warning)",
+    )
+    p.add_argument("--height", type=float, default=0.0, help="site height, m (default 0)")
+
+
 def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
     """Options shared by calibrate and diagnose (conventions section 8)."""
     p.add_argument("positions", metavar="POSITIONS.csv")
@@ -36,13 +48,7 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--mc", type=int, default=100, help="Monte Carlo runs for swarms (default 100)")
     p.add_argument("--seed", type=int, default=0, help="random seed for swarms (default 0)")
-    p.add_argument(
-        "--latitude",
-        type=float,
-        default=None,
-        help="site latitude, deg (default 45 with a warning)",
-    )
-    p.add_argument("--height", type=float, default=0.0, help="site height, m (default 0)")
+    add_site_options(p)
     p.add_argument(
         "--prior",
         metavar="COEFFS.json",

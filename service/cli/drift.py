@@ -17,6 +17,8 @@ import json
 import sys
 from typing import Any
 
+from service.cli.calibrate import add_site_options
+
 #: An alarm before this row is more likely coefficients that never fitted than a change.
 EARLY_ALARM_ROWS = 2
 
@@ -37,13 +39,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="COEFFS.json",
         help="the accepted coefficients (section 5 layout with 'uncertainty', or calibrate --json)",
     )
-    p.add_argument(
-        "--latitude",
-        type=float,
-        default=None,
-        help="site latitude, deg (default 45 with a warning)",
-    )
-    p.add_argument("--height", type=float, default=0.0, help="site height, m (default 0)")
+    add_site_options(p)
     p.add_argument(
         "--false-alarm-windows",
         type=float,
