@@ -4,13 +4,17 @@
 the serial reader runs in its own thread and hands frames to the pipeline; calibrations run in
 a supervised worker process. Under systemd (``Type=notify``) the daemon reports READY=1 once it
 serves and pets the watchdog only while every part is alive: the reader thread, the detector
-(frames that arrive are processed), the job supervisor and the housekeeping loop itself. A part
-that is alive but failing (device unplugged, database down, publish file unwritable) makes
-``/health`` say ``degraded`` with the reason; restarting would not mend those.
+(frames that arrive are processed), the job supervisor, the publisher (not closed), the HTTP
+server (its event loop runs) and the housekeeping loop itself. A dead part stops the petting,
+is named in ``/health`` (``problems`` and ``service.dead_parts``) and in a ``STATUS=`` line to
+systemd, and systemd restarts the service once ``WatchdogSec`` has passed. A part that is alive
+but failing (device unplugged, database down, publish file unwritable) makes ``/health`` say
+``degraded`` with the reason but does not stop the petting: restarting would not mend those.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import os
@@ -30,10 +34,20 @@ log = logging.getLogger("recal.daemon")
 
 #: How often the published file is compared with the database, s.
 SYNC_EVERY_S = 10.0
+#: How often the watchdog is petted when systemd gives no WatchdogSec, s (and the longest).
+WATCHDOG_EVERY_S = 5.0
+#: The HTTP server counts as hung when its event loop has not ticked for this long, s
+#: (uvicorn ticks every 0.1 s).
+API_STALL_S = 5.0
+#: The detector counts as stuck when a frame has waited this long to be processed, s.
+DETECTOR_STALL_S = 30.0
 
 
 def sd_notify(message: str) -> bool:
-    """Send a datagram to systemd's NOTIFY_SOCKET (no-op without it). Returns True if sent."""
+    """Send a datagram to systemd's NOTIFY_SOCKET (no-op without it). Returns True if sent.
+
+    Never blocks: a receiver whose queue is full (``net.unix.max_dgram_qlen`` datagrams) loses
+    this one rather than stall housekeeping."""
     addr = os.environ.get("NOTIFY_SOCKET")
     if not addr:
         return False
@@ -41,11 +55,23 @@ def sd_notify(message: str) -> bool:
         addr = "\0" + addr[1:]
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+            sock.setblocking(False)
             sock.connect(addr)
             sock.sendall(message.encode())
         return True
     except OSError:
         return False
+
+
+def watchdog_interval_s() -> float:
+    """How often to pet the watchdog, s: half of systemd's ``WatchdogSec`` (``WATCHDOG_USEC``,
+    when it is meant for this process: ``WATCHDOG_PID`` unset or ours), at most
+    :data:`WATCHDOG_EVERY_S`."""
+    usec = os.environ.get("WATCHDOG_USEC", "")
+    pid = os.environ.get("WATCHDOG_PID", "")
+    if not usec.isdigit() or int(usec) == 0 or (pid and pid != str(os.getpid())):
+        return WATCHDOG_EVERY_S
+    return min(WATCHDOG_EVERY_S, int(usec) / 2e6)
 
 
 @dataclass
@@ -60,18 +86,51 @@ class Service:
     session_id: int
     events: Events
     reader: Any = None
+    #: The uvicorn server of the API (set by :func:`make_server`); None: no API to watch.
+    server: Any = None
     started: float = field(default_factory=time.monotonic)
     last_tick: float = field(default_factory=time.monotonic)
     last_sync: float = field(default_factory=time.monotonic)
 
-    def problems(self) -> list[str]:
-        """Why the service is degraded, in plain words (empty when all is well)."""
-        out = []
-        if self.reader is not None:
+    def dead_parts(self) -> dict[str, str]:
+        """The parts that have stopped or hung, each with why (empty when all live). A restart
+        mends these, so the watchdog is not petted while any is listed."""
+        dead: dict[str, str] = {}
+        if self.reader is not None and not self.reader.health().running:
+            dead["reader"] = "the reader thread has stopped"
+        held = self.ingest.frames_waiting_s()
+        if held is not None and held >= DETECTOR_STALL_S:  # frames pile up unprocessed
+            dead["detector"] = f"frames have waited {held:.0f} s to be processed"
+        if not self.scheduler.alive:
+            dead["scheduler"] = "the job supervisor is not running"
+        if self.publisher.closed:  # every /events stream has ended and none can start
+            dead["publisher"] = "closed: no /events stream receives new versions"
+        api = self._api_dead()
+        if api is not None:
+            dead["api"] = api
+        return dead
+
+    def _api_dead(self) -> str | None:
+        """Why the HTTP API no longer answers, or None (also before it starts and once it is
+        asked to stop)."""
+        server = self.server
+        if server is None or not server.started or server.should_exit:
+            return None  # not serving yet, or stopping as asked (STOPPING=1 follows)
+        if server.loop is None or not server.loop.is_running():
+            return "the HTTP server's event loop has ended"
+        quiet = time.monotonic() - server.loop_tick
+        if quiet >= API_STALL_S:
+            return f"the HTTP server's event loop has not run for {quiet:.0f} s"
+        return None
+
+    def problems(self, dead: dict[str, str] | None = None) -> list[str]:
+        """Why the service is degraded, in plain words (empty when all is well): the dead parts
+        (``dead``, default :meth:`dead_parts`) first, then the parts that live but fail."""
+        dead = self.dead_parts() if dead is None else dead
+        out = [f"{part}: {why}" for part, why in dead.items()]
+        if self.reader is not None and "reader" not in dead:
             h = self.reader.health()
-            if not h.running:
-                out.append("reader: the reader thread has stopped")
-            elif getattr(h, "problem", None):  # disconnected, or connected but silent
+            if getattr(h, "problem", None):  # disconnected, or connected but silent
                 out.append(f"reader: {self.settings.device.url}: {h.problem}")
             elif not h.connected:
                 out.append(f"reader: device {self.settings.device.url} is not connected"
@@ -79,24 +138,21 @@ class Service:
         if self.ingest.store_error is not None:
             out.append(f"database: {self.ingest.spooled} window(s) waiting to be stored "
                        f"({self.ingest.store_error})")  # fmt: skip
-        if not self.scheduler.alive:
-            out.append("scheduler: the job supervisor is not running")
         if self.publisher.error is not None:
             out.append(f"publisher: {self.publisher.error}")
         return out
 
     def alive(self) -> bool:
-        """Every thread the service needs runs and makes progress (what the watchdog reports)."""
-        reader_ok = self.reader is None or self.reader.health().running
-        held = self.ingest.frames_waiting_s()
-        detector_ok = held is None or held < 30.0  # frames are not piling up unprocessed
-        return reader_ok and detector_ok and self.scheduler.alive
+        """Every part the service needs runs and makes progress (what the watchdog reports)."""
+        return not self.dead_parts()
 
     def health(self) -> dict[str, Any]:
-        problems = self.problems()
+        dead = self.dead_parts()
+        problems = self.problems(dead)
         out: dict[str, Any] = {
             "status": "degraded" if problems else "ok",
             "problems": problems,
+            "dead_parts": list(dead),  # the watchdog is not petted while any is listed
             "session": self.session_id,
             "uptime_s": time.monotonic() - self.started,
             "frames": self.ingest.frames,
@@ -230,6 +286,22 @@ def make_server(service: Service) -> Any:
     from service.api import create_app
 
     class Server(uvicorn.Server):
+        def __init__(self, config: uvicorn.Config) -> None:
+            super().__init__(config)
+            # for the watchdog: the event loop that serves, and its heartbeat (a hung loop
+            # stops ticking)
+            self.loop: asyncio.AbstractEventLoop | None = None
+            self.loop_tick = time.monotonic()
+
+        async def startup(self, sockets: Any = None) -> None:
+            self.loop = asyncio.get_running_loop()
+            await super().startup(sockets)
+            self.loop_tick = time.monotonic()  # ``started`` is set: the ticks begin now
+
+        async def on_tick(self, counter: int) -> bool:
+            self.loop_tick = time.monotonic()
+            return await super().on_tick(counter)
+
         @contextlib.contextmanager
         def capture_signals(self) -> Iterator[None]:
             if threading.current_thread() is not threading.main_thread():
@@ -249,7 +321,8 @@ def make_server(service: Service) -> Any:
     # open /events streams would hold a graceful shutdown forever: give them a few seconds
     config = uvicorn.Config(app, host=api.host, port=api.port, log_level="warning",
                             timeout_graceful_shutdown=3)  # fmt: skip
-    return Server(config)
+    service.server = server = Server(config)
+    return server
 
 
 def run_server(server: Any, api: Any) -> None:
@@ -266,6 +339,63 @@ def run_server(server: Any, api: Any) -> None:
             f"[api] port {api.port} on {api.host} cannot be served (already in use?): change "
             "[api] port or stop the other program"
         ) from exc
+
+
+class Housekeeping:
+    """The daemon's housekeeping thread (:meth:`run`): READY=1 once the API serves, then
+    :meth:`Service.tick` every ``tick_s`` and, every ``watchdog_s``, WATCHDOG=1 only while no part
+    is dead (:meth:`Service.dead_parts`). When the dead parts change, systemd gets a ``STATUS=``
+    line naming them (``systemctl status`` shows it) and a ``watchdog`` event says the same."""
+
+    def __init__(self, service: Service, stop: threading.Event, tick_s: float = 1.0,
+                 watchdog_s: float = WATCHDOG_EVERY_S) -> None:  # fmt: skip
+        self.service = service
+        self.stop = stop
+        self.tick_s = tick_s
+        self.watchdog_s = watchdog_s
+        self.checks = 0  # liveness checks done (each ends with WATCHDOG=1 or with none)
+        self.fed = 0  # WATCHDOG=1 sent (and received by the socket)
+        self.dead: dict[str, str] = {}  # the dead parts at the last check
+
+    def run(self) -> None:
+        server = self.service.server
+        while server is not None and not server.started:  # READY=1 as soon as the API answers
+            if self.stop.wait(0.1):
+                return
+        sd_notify("READY=1")
+        api = self.service.settings.api
+        self.service.events.emit("ready", f"serving on http://{api.host}:{api.port}")
+        try:
+            self.service.scheduler.resume()
+        except Exception:  # noqa: BLE001 - e.g. the database is down: the next tick retries
+            log.exception("resuming jobs at start failed")
+        due = time.monotonic() + self.watchdog_s
+        while not self.stop.wait(self.tick_s):
+            try:
+                self.service.tick()
+            except Exception:  # noqa: BLE001 - one bad tick must not end housekeeping
+                log.exception("housekeeping failed")
+            if time.monotonic() >= due:
+                due = time.monotonic() + self.watchdog_s
+                self.check()
+
+    def check(self) -> bool:
+        """Pet the watchdog if every part lives; returns whether it was petted."""
+        dead = self.service.dead_parts()
+        if dead.keys() != self.dead.keys():
+            if dead:
+                lines = "; ".join(f"{part}: {why}" for part, why in dead.items())
+                self.service.events.emit("watchdog", f"not petted: {lines}",
+                                         {"dead": ",".join(dead)}, level=logging.ERROR)  # fmt: skip
+                sd_notify(f"STATUS=not petting the watchdog: {lines}")
+            else:
+                self.service.events.emit("watchdog", "every part lives again")
+                sd_notify("STATUS=every part lives")
+        self.dead = dead
+        if not dead and sd_notify("WATCHDOG=1"):
+            self.fed += 1
+        self.checks += 1
+        return not dead
 
 
 def run_daemon(settings: Settings) -> int:
@@ -287,28 +417,9 @@ def run_daemon(settings: Settings) -> int:
     if stop.is_set():
         server.should_exit = True
 
-    def housekeeping() -> None:
-        while not server.started and not stop.is_set():  # READY=1 as soon as the API answers
-            if stop.wait(0.1):
-                return
-        sd_notify("READY=1")
-        service.events.emit("ready", f"serving on http://{settings.api.host}:{settings.api.port}")
-        try:
-            service.scheduler.resume()
-        except Exception:  # noqa: BLE001 - e.g. the database is down: the next tick retries
-            log.exception("resuming jobs at start failed")
-        beat = 0
-        while not stop.wait(1.0):
-            try:
-                service.tick()
-            except Exception:  # noqa: BLE001 - one bad tick must not end housekeeping
-                log.exception("housekeeping failed")
-            beat += 1
-            if beat % 5 == 0 and service.alive():
-                sd_notify("WATCHDOG=1")  # only while every part is alive
-
     service.reader.start()
-    threading.Thread(target=housekeeping, name="housekeeping", daemon=True).start()
+    keeper = Housekeeping(service, stop, watchdog_s=watchdog_interval_s())
+    threading.Thread(target=keeper.run, name="housekeeping", daemon=True).start()
     try:
         run_server(server, settings.api)
     finally:

@@ -8,8 +8,11 @@ the end. Unreachable PostgreSQL skips those tests, except under CI, where it fai
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
+import socket
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -156,3 +159,71 @@ def replay_all(service: Any, size: int, timeout_s: float = 60.0) -> None:
 @pytest.fixture
 def replay() -> Callable[..., None]:
     return replay_all
+
+
+class Systemd:
+    """The receiving end of NOTIFY_SOCKET: a bound Unix datagram socket read at once by a
+    thread, as systemd reads it (an unread socket queues only ``net.unix.max_dgram_qlen``
+    datagrams, 10 by default, and the daemon's notifications never wait for room)."""
+
+    #: Longest wait for a notification, s (it only bounds a hang: nothing is timed).
+    DEADLINE_S = 60.0
+
+    def __init__(self, path: str) -> None:
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.bind(path)
+        self._lock = threading.Lock()
+        self._messages: list[bytes] = []
+        self._thread = threading.Thread(target=self._read, name="systemd", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                message = self._sock.recv(4096)
+            except OSError:  # closed
+                return
+            if not message:  # shut down
+                return
+            with self._lock:
+                self._messages.append(message)
+
+    @property
+    def messages(self) -> list[bytes]:
+        """Every notification received so far, in order."""
+        with self._lock:
+            return list(self._messages)
+
+    def since(self, mark: int) -> list[bytes]:
+        """The notifications after the first ``mark``."""
+        return self.messages[mark:]
+
+    def wait_for(self, wanted: bytes, mark: int = 0) -> list[bytes]:
+        """The notifications after ``mark`` up to the first ``wanted`` included."""
+        deadline = time.monotonic() + self.DEADLINE_S
+        while wanted not in (got := self.since(mark)):
+            assert time.monotonic() < deadline, f"no {wanted!r} from the daemon; got {got}"
+            time.sleep(0.02)
+        return got[: got.index(wanted) + 1]
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)
+        self._sock.close()
+        self._thread.join(self.DEADLINE_S)
+
+
+@pytest.fixture
+def systemd(monkeypatch: pytest.MonkeyPatch) -> Iterator[Systemd]:
+    """A notify socket that NOTIFY_SOCKET names, in a short folder (an AF_UNIX path holds 107
+    bytes, fewer than pytest's tmp_path may need); no WATCHDOG_USEC unless a test sets one."""
+    with tempfile.TemporaryDirectory(prefix="wd") as folder:
+        path = str(Path(folder) / "notify")
+        receiver = Systemd(path)
+        monkeypatch.setenv("NOTIFY_SOCKET", path)
+        monkeypatch.delenv("WATCHDOG_USEC", raising=False)
+        monkeypatch.delenv("WATCHDOG_PID", raising=False)
+        try:
+            yield receiver
+        finally:
+            receiver.close()

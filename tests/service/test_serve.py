@@ -20,7 +20,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path):
+def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path, systemd):
     session = simulate_session(kvh_like_truth(2), "24", latitude_deg=50.0, seed=2, rate_hz=100.0,
                                window_s=15.0, slew_s=3.0, first_hold_s=30.0)  # fmt: skip
     capture = tmp_path / "capture.bin"
@@ -33,18 +33,15 @@ def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path):
         f"[site]\nlatitude_deg = 50.0\n[detector]\ninit_still_s = 20\nmin_duration_s = 5\n"
         f"[api]\nport = {port}\n"
     )
-    notify_path = str(tmp_path / "notify.sock")
-    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    notify.bind(notify_path)
-    notify.settimeout(30)
-    env = {**os.environ, "NOTIFY_SOCKET": notify_path}
+    # NOTIFY_SOCKET names the ``systemd`` fixture's socket; WatchdogSec=2: petted every 1 s
+    env = {**os.environ, "WATCHDOG_USEC": "2000000"}
     proc = subprocess.Popen(
         [sys.executable, "-m", "service.cli.main", "serve", "--config",
          str(tmp_path / "recal.toml"), "--log-level", "WARNING"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        assert notify.recv(64) == b"READY=1"
+        assert systemd.wait_for(b"READY=1") == [b"READY=1"]
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as http:
             deadline = time.monotonic() + 60
             # the last hold is still open while the stream idles: 23 windows have closed
@@ -55,16 +52,14 @@ def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path):
             while http.get("/coefficients").status_code != 200:
                 assert time.monotonic() < deadline, http.get("/coefficients/history").json()
                 time.sleep(0.2)
+        systemd.wait_for(b"WATCHDOG=1")  # every part lives: the watchdog is petted
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=30) == 0, proc.stderr.read()
-        messages = []
-        while (msg := notify.recv(64)) != b"STOPPING=1":
-            messages.append(msg)  # the watchdog is petted while every part is alive
-        assert set(messages) <= {b"WATCHDOG=1"}
+        # and nothing said that a part had died
+        assert set(systemd.wait_for(b"STOPPING=1")) == {b"READY=1", b"WATCHDOG=1", b"STOPPING=1"}
     finally:
         if proc.poll() is None:
             proc.kill()
-        notify.close()
     store = Store(f"sqlite:///{db}")
     events = [e["kind"] for e in store.events(limit=100)]
     assert "start" in events and "stop" in events and "calibration" in events
