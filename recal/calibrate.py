@@ -458,13 +458,11 @@ def _earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None)
     noise in deg/h and gives the hold that pins the scale factors to their typical change;
     without it the noise stays in output units.
     """
-    noise = positions.std_of_mean("gyro")
-    if noise is None or len(positions) < 3:
+    seen = positions.gyro_contrast()
+    if seen is None:
         return None
-    spread = np.ptp(positions.gyro, axis=0)
-    sem = np.maximum(np.median(noise, axis=0), 1e-300)  # (3,) typical window-mean noise
-    axis = int(np.argmax(spread / sem))
-    contrast = float(spread[axis] / sem[axis])
+    contrast, axis = seen
+    sem = np.maximum(np.median(positions.std_of_mean("gyro"), axis=0), 1e-300)
     if contrast >= MIN_EARTH_RATE_CONTRAST:
         return None
     gain = 1.0 if scale is None else abs(float(np.asarray(scale, float)[axis]))
@@ -1026,7 +1024,7 @@ def calibrate(
     T = typical[:, None] * report.basis
     cov_measurement, chi2_red = covariance(problem, theta, T)
     # the held directions are not exact: their prior uncertainty moves the estimated ones
-    cls = sensor_class(positions, problem.layout, theta0)
+    cls = sensor_class(positions, problem.layout, theta0, MIN_EARTH_RATE_CONTRAST)
     sigma0, sigma0_source = prior_sigma(
         problem.layout, theta0, typical, opt.prior.uncertainty if opt.prior else None, cls
     )

@@ -143,28 +143,25 @@ def consider_covariance(
     return 0.5 * e.T @ e
 
 
-#: Gyro outputs that differ between positions by this many window-mean noise levels see Earth
-#: rate: a navigation-grade gyro (a FOG shows hundreds to thousands, a MEMS tens at most). Used
-#: only to pick the class of default prior sigmas, never to choose how the gyro is fitted.
-NAVIGATION_GYRO_CONTRAST = 50.0
 #: Accelerometer white noise below this (micro-g/sqrt(Hz)) is navigation grade (quartz-flex
 #: tens, MEMS 60-300): the class when no gyro is present.
 NAVIGATION_ACCEL_DENSITY_UG = 60.0
 
 
-def sensor_class(positions, layout: ParameterLayout, theta_prior: np.ndarray) -> str:
-    """ "navigation" or "mems": which :data:`DEFAULT_PRIOR_SIGMA` a data-derived prior uses.
+def sensor_class(
+    positions, layout: ParameterLayout, theta_prior: np.ndarray, earth_rate_contrast: float
+) -> str:
+    """Which :data:`DEFAULT_PRIOR_SIGMA` ("navigation" or "mems") a data-derived prior uses.
 
-    From the gyro when present (do its window means show Earth rate?), else from the
+    From the gyro when present (its window means show Earth rate: a contrast of at least
+    ``earth_rate_contrast``, :meth:`recal.positions.Positions.gyro_contrast`), else from the
     accelerometer's white-noise density (window-mean noise x sqrt(hold), in g via the prior
-    scale); "mems" when neither can tell (the conservative choice).
+    scale); "mems" when neither can tell (the conservative choice). Only the defaults depend on
+    it, never how the gyro is fitted.
     """
-    if positions.has_gyro:
-        noise = positions.std_of_mean("gyro")
-        if noise is not None and len(positions) >= 3:
-            sem = np.maximum(np.median(noise, axis=0), 1e-300)
-            contrast = float(np.max(np.ptp(positions.gyro, axis=0) / sem))
-            return "navigation" if contrast >= NAVIGATION_GYRO_CONTRAST else "mems"
+    seen = positions.gyro_contrast() if positions.has_gyro else None
+    if seen is not None:
+        return "navigation" if seen[0] >= earth_rate_contrast else "mems"
     cols = positions.columns
     slices = layout.term_slices()
     if positions.has_accel and "accel.scale" in slices and "start_s" in cols and "end_s" in cols:

@@ -176,6 +176,19 @@ class Positions:
             return "std columns"
         return None
 
+    def gyro_contrast(self) -> tuple[float, int] | None:
+        """(contrast, axis): the largest spread of the gyro window means between positions, per
+        axis, over that axis's typical (median) window-mean noise; None without gyro noise
+        columns or with fewer than 3 positions. Earth rate shows as a large contrast (a FOG:
+        hundreds to thousands), a MEMS gyro's window means differ by its noise (tens at most)."""
+        noise = self.std_of_mean("gyro")
+        if noise is None or len(self) < 3:
+            return None
+        spread = np.ptp(self.gyro, axis=0)
+        sem = np.maximum(np.median(noise, axis=0), 1e-300)
+        axis = int(np.argmax(spread / sem))
+        return float(spread[axis] / sem[axis]), axis
+
     def std_of_mean(self, sensor: str) -> np.ndarray | None:
         """Standard error of each window mean, (M, 3) output units, or None without noise columns.
 
