@@ -174,6 +174,11 @@ class SchedulerSettings(Section):
 
 
 class GateSettings(Section):
+    """The acceptance gate's limits (:func:`service.gate.gate` takes this object itself, as
+    ``service.gate.GateConfig``): one definition for the file, the environment and the code."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
     max_chi2_red: float = Field(
         4.0, gt=0, description="reject a fit whose residuals exceed the window noise this much"
     )
@@ -182,6 +187,11 @@ class GateSettings(Section):
     )
     max_relative_scale_sigma: float = Field(
         2e-3, gt=0, description="reject an estimated scale factor less certain than this (relative)"
+    )
+    require_verdict: Literal["partial", "full"] = Field(
+        "partial",
+        description="weakest observability verdict published: partial (some coefficients held "
+        "at the prior) or full",
     )
     allow_jump: bool = Field(
         False, description="accept changes beyond max_change_sigma (after a repair), with a note"

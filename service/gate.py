@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from recal.calibrate import CalibrationResult
 from recal.navigation import NMI_M
+from service.config import GateSettings
 from service.db import CalibrationRecord
 
 if TYPE_CHECKING:
@@ -29,24 +30,9 @@ _SEED_KEYS = ("scale", "bias", "misalignment", "quadratic")
 _MAX_LISTED = 5
 
 
-@dataclass(frozen=True)
-class GateConfig:
-    """Acceptance limits (see docs/service.md)."""
-
-    max_chi2_red: float = 4.0
-    max_change_sigma: float = 6.0
-    max_relative_scale_sigma: float = 2e-3
-    require_verdict: str = "partial"
-    allow_jump: bool = False
-    allow_unconfirmed_effects: bool = False
-    refuse_worse_navigation: bool = False
-    navigation_margin_nmi: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.require_verdict not in VERDICTS[1:]:
-            raise ValueError(
-                f"require_verdict must be 'partial' or 'full', not {self.require_verdict!r}"
-            )
+#: The acceptance limits are the ``[gate]`` settings themselves (one definition: the file, the
+#: environment and ``gate()`` cannot drift apart); see docs/service.md.
+GateConfig = GateSettings
 
 
 @dataclass
