@@ -23,12 +23,13 @@ nested with ``__``), the TOML file, the defaults below. Example file::
 
 from __future__ import annotations
 
+import dataclasses
 import ipaddress
 import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -47,6 +48,8 @@ from pydantic_settings import (
 )
 
 from recal.errors import RecalInputError
+
+T = TypeVar("T")
 
 #: Shortest ``[api] token`` accepted.
 MIN_TOKEN_LENGTH = 16
@@ -308,6 +311,15 @@ class Settings(BaseSettings):
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         # keyword arguments > environment > TOML file (``toml_file`` of the model config)
         return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
+
+
+def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:
+    """``cls`` (a dataclass of a lower layer, e.g. ``recal.static.DetectorConfig`` or
+    ``drivers.DecoderConfig``) from the fields of a settings ``section`` it shares by name, plus
+    ``extra``: no field-by-field copy to fall out of step when either side gains a field."""
+    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    given = {k: v for k, v in section.model_dump().items() if k in names}
+    return cls(**{**given, **extra})
 
 
 def _check_keys(model: type[BaseModel], data: Mapping[str, Any], section: str | None) -> None:

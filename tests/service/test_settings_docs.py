@@ -123,3 +123,21 @@ def test_a_verdict_the_gate_cannot_use_is_refused(tmp_path: Path) -> None:
     path.write_text('[gate]\nrequire_verdict = "insufficient"\n', encoding="utf-8")
     with pytest.raises(RecalInputError, match="gate.require_verdict"):
         load_settings(path)
+
+
+def test_mirrored_sections_build_their_configs_and_share_defaults() -> None:
+    """A section and the lower layer's config it feeds (same field names) must not drift."""
+    import dataclasses
+
+    from drivers import DecoderConfig
+    from recal.static import DetectorConfig
+    from service.config import DetectorSettings, DeviceSettings, config_from
+
+    for section, cls in ((DetectorSettings(), DetectorConfig), (DeviceSettings(), DecoderConfig)):
+        built = config_from(cls, section)
+        shared = {f.name for f in dataclasses.fields(cls)} & set(type(section).model_fields)
+        assert shared, f"{cls.__name__} shares no field with {type(section).__name__}"
+        for name in shared:
+            assert getattr(built, name) == getattr(cls(), name) == getattr(section, name), name
+    tuned = config_from(DetectorConfig, DetectorSettings(threshold_k=7.0), sample_rate_hz=200.0)
+    assert (tuned.threshold_k, tuned.sample_rate_hz) == (7.0, 200.0)
