@@ -2,7 +2,7 @@
 
 ``create_app(store, publisher, trigger, health, api=settings.api)`` builds the app; the daemon
 serves it with uvicorn. ``trigger()`` queues a manual recalibration and returns a job id; it
-returns None or raises RuntimeError (e.g. ``pipeline.SchedulerBusy``) when it cannot start one
+returns None or raises RuntimeError (e.g. ``scheduler.SchedulerBusy``) when it cannot start one
 (409, with the reason). SSE streams end when the client goes or when :meth:`Publisher.close` is
 called: call it as shutdown begins, since uvicorn waits for open streams before it shuts down.
 

@@ -28,7 +28,8 @@ from typing import Any
 
 from service.config import Settings
 from service.events import Events
-from service.pipeline import FloorKeeper, Ingest, Scheduler, detector_config, window_frames
+from service.pipeline import FloorKeeper, Ingest, detector_config, window_frames
+from service.scheduler import Scheduler
 
 log = logging.getLogger("recal.daemon")
 

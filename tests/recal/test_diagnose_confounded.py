@@ -165,7 +165,7 @@ def test_calibrate_with_the_effect_says_it_is_unconfirmed_and_the_gate_refuses_i
 
 def test_the_service_job_refuses_an_unconfirmed_effect(magnetic):
     from service.config import GateSettings
-    from service.pipeline import calibration_job
+    from service.recalibration import calibration_job
 
     pos, _, _ = magnetic
     opt = CalibrationOptions(latitude_deg=LAT, effects=(G_SENS,))

@@ -20,7 +20,7 @@ from recal.navigation import NMI_M
 from recal.simulate import simulate_positions
 from service.db import CalibrationRecord
 from service.gate import GateConfig
-from service.pipeline import calibration_job, navigation_impact_of
+from service.recalibration import calibration_job, navigation_impact_of
 
 TRUTH = CoefficientSet.seed_truth()
 LAT = 52.0

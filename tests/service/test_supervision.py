@@ -93,7 +93,7 @@ def test_a_killed_worker_is_recorded_and_the_next_trigger_works(tmp_path, captur
 
 
 def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
-    from service.pipeline import SchedulerRefused
+    from service.scheduler import SchedulerRefused
 
     service = build_service(_settings(f"sqlite:///{tmp_path / 'r.db'}", tmp_path),
                             with_reader=False)  # fmt: skip
