@@ -59,7 +59,7 @@ def aged_truth(rng: np.random.Generator) -> CoefficientSet:
     t.values["gyro.scale"] = t.values["gyro.scale"] * (1 + 300e-6 * rng.normal(size=3))
     t.values["gyro.bias"] = t.values["gyro.bias"] + 0.01 * rng.normal(size=3)
     # Mounting barely ages (2 arcsec); a 2e-4 rad change would mostly be unobservable from
-    # norms (the antisymmetric part is held at the prior, conventions section 3) and would
+    # norms (the antisymmetric part is held at the prior, docs/reference.md#norms) and would
     # stay in every recalibrated set as ~0.003 deg/h of rate error.
     t.values["gyro.misalignment"] = t.values["gyro.misalignment"] + 1e-5 * rng.normal(size=6)
     t.metadata = {"source": "aged truth"}

@@ -4,7 +4,7 @@ Each capture (129.6 MB and 518 MB) is written in pieces to a temporary folder an
 afterwards: holds of 20.48 s joined by 5.12 s slews through 8 poses, 20 deg/h gyro noise and
 1e-4 g accel noise. The pattern is encoded once and repeated (its length is a whole number of
 128-frame sequence periods, so the bytes repeat exactly). `recal positions` then runs as a
-subprocess with only the flags conventions section 8 shows (flag-free: two passes, the noise
+subprocess with only the flags docs/reference.md#cli shows (flag-free: two passes, the noise
 floor and then the windows); its peak resident memory is the child's ru_maxrss. For
 comparison the script also runs the old whole-file path (`decode_bulk` + `detect_static`) on
 the 1 h capture, unless --no-bulk.

@@ -512,7 +512,7 @@ def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...
 
 def _decided(report: ObservabilityReport, when: str = "") -> ObservabilityReport:
     """``report``, or :class:`RecalInputError` when nothing at all can be estimated
-    (conventions section 8). A design that cannot show some scale factors or biases is a
+    (docs/reference.md#cli). A design that cannot show some scale factors or biases is a
     partial success: those are held at the prior with its uncertainty, the verdict stays
     "insufficient" (a gate can refuse to publish it) and a note says so
     (:func:`_observability_notes`)."""

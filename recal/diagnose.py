@@ -2,7 +2,7 @@
 
 :func:`diagnose` fits the model (seed terms plus any effects already chosen), compares each
 invariant's residual with its noise floor, then tries every candidate effect of the catalogue
-(conventions section 7) and of the user's plugins one at a time on top of it:
+(docs/reference.md#effects) and of the user's plugins one at a time on top of it:
 
 * ``delta_bic``: change of the Bayesian information criterion, chi^2 + k ln(n), where k counts
   the *observable* directions; negative means the effect earns its parameters.

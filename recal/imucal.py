@@ -4,7 +4,7 @@ imucal (mad-lab-fau/imucal) writes ``acc_raw = K_a R_a a + b_a`` and
 ``gyr_raw = K_g R_g w + K_ga a + b_g``, with K diagonal, R with unit-norm rows (not orthogonal),
 ``w`` in deg/s and ``a`` in m/s^2 scaled so that |a| = 9.81 at rest (it assumes that value of
 gravity wherever the unit was). This project writes ``N = diag(K) [(I + E) x + b]`` with a zero
-diagonal of E, ``x`` in g (9.80665 m/s^2) or deg/h (conventions section 1). So, with
+diagonal of E, ``x`` in g (9.80665 m/s^2) or deg/h (docs/reference.md#models). So, with
 ``A = K R`` in output units per input unit:
 
     K_i = A_ii,   E_ij = A_ij / A_ii,   b = b_raw / K
@@ -44,7 +44,7 @@ def _matrix(doc: Mapping[str, Any], key: str) -> np.ndarray:
 
 
 def _split(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(K, E as the six conventions-section-1 entries) from A = diag(K) (I + E)."""
+    """(K, E as the six entries of docs/reference.md#models) from A = diag(K) (I + E)."""
     K = np.diag(A).copy()
     E = A / K[:, None]
     return K, np.array([E[r, c] for r, c in MISALIGNMENT_INDEX])

@@ -20,7 +20,7 @@ Pipeline
    each sample (K2 * var(f): ~1e-5/g * (0.6 mg)^2 = 4e-12 g for 20 ug/rtHz at 1 kHz), and motion
    faster than the output rate (coning, sculling above ~5 Hz) is averaged away. A static
    recording loses nothing measurable; a ship's 5-15 s roll is far below 5 Hz.
-2. :func:`correct_outputs` applies each coefficient set (the inverse of conventions section 1,
+2. :func:`correct_outputs` applies each coefficient set (the inverse of docs/reference.md#models,
    :meth:`recal.model.Model.inverse`, effects included) -> rates in rad/s, specific force m/s^2,
    batched over P coefficient sets (leading axis).
 3. :func:`navigate`: a two-speed strapdown algorithm. The fast part composes the samples of

@@ -1,9 +1,9 @@
 """What a set of static positions can show: rank, condition and held directions of the Jacobian.
 
 A norm is unchanged by any rotation of a triad's frame, so norms alone cannot see the
-antisymmetric part of E (conventions section 3); a hull-fixed IMU turning only in heading cannot
+antisymmetric part of E (docs/reference.md#norms); a hull-fixed IMU turning only in heading cannot
 separate the vertical axis's scale from its bias. Neither is decided by counting positions
-(conventions section 3: rank decides): this module takes the whitened Jacobian J (R x D), each
+(docs/reference.md#norms: rank decides): this module takes the whitened Jacobian J (R x D), each
 parameter scaled by its typical change (:attr:`recal.terms.Term.typical`), and calls a direction
 observable when
 
@@ -167,7 +167,7 @@ def _group_svd(Jp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 #: Held-direction reason for a rotation of a triad's frame, which no norm can see.
-ROTATION_REASON = "a rotation of the frame: no norm can see it (conventions section 3)"
+ROTATION_REASON = "a rotation of the frame: no norm can see it (docs/reference.md#norms)"
 #: With slews: the rotation of both triads together relative to the case, which no invariant
 #: sees without an outside reference; the accelerometer frame is the reference.
 COMMON_ROTATION_REASON = (

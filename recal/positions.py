@@ -1,4 +1,5 @@
-"""Static positions: the table of window means the engine calibrates from (conventions section 4).
+"""Static positions: the table of window means the engine calibrates from
+(docs/reference.md#positions).
 
 A :class:`Positions` holds one row per static window as named numpy columns. It is parsed from
 and formatted to CSV *text*; the caller does the file I/O, so this stays usable from a notebook.

@@ -1,6 +1,6 @@
 """The calibration problem: positions + models + invariants + noise floors, batched.
 
-At rest every position must satisfy (conventions section 2)
+At rest every position must satisfy (docs/reference.md#rest)
 
 * gyro norm:  |w_hat| = Omega_ie (15.04107 deg/h)
 * accel norm: |f_hat| = g_local / g0 (WGS-84 normal gravity, in g)

@@ -1,4 +1,4 @@
-"""Reference magnitudes at rest: Earth rate and WGS-84 normal gravity (conventions section 2)."""
+"""Reference magnitudes at rest: Earth rate and WGS-84 normal gravity (docs/reference.md#rest)."""
 
 from __future__ import annotations
 

@@ -238,7 +238,7 @@ def gauss_markov(
 def session_positions(session: Session, sensors: Sequence[str] = ("gyro", "accel")) -> Positions:
     """The true window means: one row per hold, every sample of the hold averaged.
 
-    Columns as ``recal positions`` writes them (conventions section 4): start/end times of the
+    Columns as ``recal positions`` writes them (docs/reference.md#positions): start/end times of the
     hold's first and last samples, sample count, mean and per-sample standard deviation (ddof 1)
     per axis, mean temperature and its least-squares slope (degC/h).
     """

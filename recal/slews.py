@@ -1,7 +1,7 @@
 """The slew invariant: the gyro, integrated over the motion between two static windows, must carry
 the gravity direction measured in the first window onto the one measured in the next.
 
-Norms cannot see a rotation of a triad's frame (conventions section 3). Integrating the gyro over
+Norms cannot see a rotation of a triad's frame (docs/reference.md#norms). Integrating the gyro over
 each slew (the samples between two consecutive windows) can: the integrated rotation, applied to
 the calibrated accelerometers' gravity direction of window k, predicts the direction of window
 k + 1, and the two must agree (Tedaldi et al., ICRA 2014, the method of imu_tk). The residual has

@@ -83,7 +83,7 @@ REASON_TEXT = {
 MAX_REJECTED_STRETCHES = 10_000
 #: Rejected stretches the summary lists one by one (the rest are counted by reason).
 MAX_LISTED_REJECTIONS = 20
-#: Columns beyond conventions section 4 that :func:`windows_to_columns` adds.
+#: Columns beyond docs/reference.md#positions that :func:`windows_to_columns` adds.
 #: ``gyro_still``: 1 where both triads were still, 0 for an accelerometer-only window (the gyro
 #: static invariants leave that row out; see recal.problem).
 EXTRA_COLUMNS = ("frames_lost", "frames_invalid", "gyro_still")
@@ -1296,7 +1296,7 @@ def detect_static(
 
 
 def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
-    """Positions-table columns (conventions section 4) plus :data:`EXTRA_COLUMNS`.
+    """Positions-table columns (docs/reference.md#positions) plus :data:`EXTRA_COLUMNS`.
 
     The ``*_sem`` columns are :func:`pooled_standard_errors` over these windows; the gyro's are
     pooled separately over the accelerometer-only windows (``gyro_still`` 0), whose gyro noise

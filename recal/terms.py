@@ -1,6 +1,6 @@
 """Physical terms of the sensor error models.
 
-A triad's output is modelled (conventions section 1) as
+A triad's output is modelled (docs/reference.md#models) as
 
     N = K_eff ⊙ [ A x + Σ nonlinear(x) + Σ offset ]
 
@@ -52,10 +52,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 AXES = ("x", "y", "z")
-#: Misalignment coefficient names in the order of conventions section 5 / seed 000 Table 3.
+#: Misalignment coefficient names in the order of docs/reference.md#coefficients / seed 000 Table 3.
 MISALIGNMENT_NAMES = ("Exz", "Exy", "Eyz", "Eyx", "Ezy", "Ezx")
-#: (row, column) of each name in E = [[0, Exz, Exy], [Eyz, 0, Eyx], [Ezy, Ezx, 0]] (conventions
-#: section 1, seed 000 eq. 11): the antisymmetric pairs are Exz/Eyz, Exy/Ezy, Eyx/Ezx.
+#: (row, column) of each name in E = [[0, Exz, Exy], [Eyz, 0, Eyx], [Ezy, Ezx, 0]]
+#: (docs/reference.md#models, seed 000 eq. 11): the antisymmetric pairs are Exz/Eyz,
+#: Exy/Ezy, Eyx/Ezx.
 MISALIGNMENT_INDEX = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 
 _ROWS, _COLS = (np.array(ix) for ix in zip(*MISALIGNMENT_INDEX, strict=True))
@@ -68,7 +69,7 @@ class Term:
     """One physical term of a sensor model.
 
     Attributes:
-        name: catalogue name, e.g. ``"gyro.scale"`` (conventions section 7).
+        name: catalogue name, e.g. ``"gyro.scale"`` (docs/reference.md#effects).
         sensor: ``"gyro"`` or ``"accel"``.
         params: parameter names, e.g. ``("Kx", "Ky", "Kz")``.
         units: unit of each parameter (one string for all, or one per parameter).
@@ -165,7 +166,7 @@ class BiasTerm(Term):
 
 @dataclass(frozen=True)
 class MisalignmentTerm(Term):
-    """E: zero-diagonal misalignment matrix, small angles in rad (conventions section 1)."""
+    """E: zero-diagonal misalignment matrix, small angles in rad (docs/reference.md#models)."""
 
     def matrix(self, p: np.ndarray) -> np.ndarray:
         E = np.zeros((p.shape[0], 3, 3))
@@ -318,7 +319,7 @@ def seed_terms(sensor: str) -> list[Term]:
 
 
 def catalogue_terms(t0_c: float = 25.0) -> dict[str, Term]:
-    """The named physical effects of conventions section 7, keyed by name."""
+    """The named physical effects of docs/reference.md#effects, keyed by name."""
     g9 = tuple(f"G{r}{c}" for r in AXES for c in AXES)
     terms: list[Term] = [
         ColumnBiasTerm(

@@ -6,7 +6,7 @@ returns None or raises RuntimeError (e.g. ``scheduler.SchedulerBusy``) when it c
 (409, with the reason). SSE streams end when the client goes or when :meth:`Publisher.close` is
 called: call it as shutdown begins, since uvicorn waits for open streams before it shuts down.
 
-Security (conventions section 10): write endpoints need ``Authorization: Bearer <[api] token>``
+Security (docs/reference.md#api): write endpoints need ``Authorization: Bearer <[api] token>``
 and are refused while no token is configured; requests carrying a foreign ``Origin`` are refused
 unless it is listed in ``[api] allowed_origins``, and writes with a body type a plain HTML form
 can send are refused, so a web page open on a bridge computer cannot trigger anything. At most

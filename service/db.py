@@ -46,7 +46,7 @@ from recal.positions import CANONICAL_ORDER, Positions
 #: records 2); a database with a newer one is refused, and so is one at an Alembic revision
 #: this code does not know.
 SCHEMA_VERSION = 2
-#: Positions columns stored as real columns (conventions section 4, schema version 1); others,
+#: Positions columns stored as real columns (docs/reference.md#positions, schema version 1); others,
 #: the optional ``*_sem`` columns included, go to ``extra``.
 POSITION_COLUMNS: tuple[str, ...] = tuple(c for c in CANONICAL_ORDER if not c.endswith("_sem"))
 
@@ -111,7 +111,7 @@ class SessionRow(Base):
 
 
 class PositionRow(Base):
-    """One static window (conventions section 4); NULL where the column was absent."""
+    """One static window (docs/reference.md#positions); NULL where the column was absent."""
 
     __tablename__ = "positions"
 
@@ -203,7 +203,7 @@ class SlewRow(Base):
 
 
 _missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
-assert not _missing, f"PositionRow lacks conventions columns {_missing}"
+assert not _missing, f"PositionRow lacks positions-file columns {_missing}"
 
 
 # ---- JSON ---------------------------------------------------------------------------------
@@ -406,7 +406,7 @@ class Store:
         period_s: float | None = None,
         previous_id: int | None = None,
     ) -> list[int]:
-        """Store positions (name -> (M,) array, conventions section 4); returns their ids.
+        """Store positions (name -> (M,) array, docs/reference.md#positions); returns their ids.
 
         The columns are validated as a :class:`Positions` first (RecalInputError if bad).
         ``slews``: ``(first row, second row, recal.slews.ReducedSlew)`` between these windows,

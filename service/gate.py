@@ -24,7 +24,8 @@ if TYPE_CHECKING:
 
 #: Verdicts of recal.observability from worst to best.
 VERDICTS = ("insufficient", "partial", "full")
-#: Seed categories stored under the sensor key (conventions section 5); the rest are effects.
+#: Seed categories stored under the sensor key (docs/reference.md#coefficients); the rest are
+#: effects.
 _SEED_KEYS = ("scale", "bias", "misalignment", "quadratic")
 #: How many jumping coefficients a rejection names before summarising the rest.
 _MAX_LISTED = 5

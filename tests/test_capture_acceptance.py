@@ -82,7 +82,7 @@ def run(request, tmp_path_factory) -> Run:
     folder = tmp_path_factory.mktemp("capture")
     capture, csv = folder / "capture.bin", folder / "positions.csv"
     capture.write_bytes(data)
-    # only the flags of conventions section 8: thresholds, gaps and trims have working defaults
+    # only the flags of docs/reference.md#cli: thresholds, gaps and trims have working defaults
     args = ("--format", "kvh-a", "--rate", rate, "-o", csv)
     rc, _, err = _cli("positions", capture, *args)
     assert rc == 0, err

@@ -86,7 +86,7 @@ def test_too_few_positions(tmp_path, capsys):
         args = ["simulate", "--design", "random", "--positions", str(n), "--sensor", "gyro"]
         assert main([*args, "-o", str(path)]) == 0
     capsys.readouterr()
-    assert main(["calibrate", str(few)]) == 0  # conventions 8: some coefficients are a success
+    assert main(["calibrate", str(few)]) == 0  # a partial design succeeds (docs/reference.md#cli)
     out = capsys.readouterr().out
     assert "partial calibration" in out and "rank 5 of 12" in out
     assert main(["calibrate", str(exact)]) == 0

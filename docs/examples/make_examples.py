@@ -9,7 +9,7 @@ Every file is simulated from a fixed seed, so running this again gives the same 
 * ``log_without_time.csv``: a log in the standard column names without a ``time_s`` column
   (gyro in deg/h, accel in g, temperature in degC), 8 poses held 3 s, 1 s slews, 100 Hz:
   ``recal positions --rate 100`` gives it its time base.
-* ``magnetic.csv``: the window means (a positions file, conventions section 4) of a FOG with a
+* ``magnetic.csv``: the window means (a positions file, docs/reference.md#positions) of a FOG with a
   Faraday bias F B (F = 0.04, -0.03, 0.05 deg/h per gauss), 36 random positions at 45 deg: the
   out-of-catalogue effect ``faraday_plugin.py`` models (the magnetic case of
   benchmarks/bench_diagnose.py, seed 0).

@@ -32,7 +32,7 @@ def add_site_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
-    """Options shared by calibrate and diagnose (conventions section 8)."""
+    """Options shared by calibrate and diagnose (docs/reference.md#cli)."""
     p.add_argument("positions", metavar="POSITIONS.csv")
     p.add_argument(
         "--sensor",

@@ -123,7 +123,7 @@ def _load(path: str):
 
 
 def to_json(inputs, result) -> dict[str, Any]:
-    """The command's JSON (conventions section 8): alarm_window, threshold, windows, suspects."""
+    """The command's JSON (docs/reference.md#cli): alarm_window, threshold, windows, suspects."""
     names = inputs.names
     windows = []
     for k in range(inputs.M):

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="append",
         required=True,
         metavar="COEFFS.json",
-        help="coefficient set (conventions section 5); repeat to compare several",
+        help="coefficient set (docs/reference.md#coefficients); repeat to compare several",
     )
     p.add_argument("--latitude", type=float, required=True, help="start latitude, deg")
     p.add_argument("--longitude", type=float, default=0.0, help="start longitude, deg")

@@ -4,9 +4,10 @@ Inputs (:mod:`service.cli.recording`, all streamed in chunks: memory does not gr
 recording's length): a KVH capture (``--format kvh-a|kvh-b|kvh-c``, decoded by
 ``drivers.StreamDecoder``; gyro in deg/h, accel in g), an Xsens text pair (``--format
 xsens-text``: the acc file and the gyro file, raw counts) or a CSV log (``--format csv``,
-conventions section 9, output units). The detector is ``recal.static``; the CSV columns are
-conventions section 4 plus ``frames_lost``, ``frames_invalid`` and ``gyro_still`` (0 for a pose
-kept for the accelerometer only: the gyro trembled, docs/static.md "Per-triad stillness"). The
+docs/reference.md#csv, output units). The detector is ``recal.static``; the CSV columns are
+docs/reference.md#positions plus ``frames_lost``, ``frames_invalid`` and ``gyro_still``
+(0 for a pose kept for the accelerometer only: the gyro trembled, docs/static.md
+"Per-triad stillness"). The
 summary on stderr counts the poses (still stretches of the accelerometer) and says why each
 rejected stretch was rejected.
 
@@ -52,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--output",
         required=True,
         metavar="POSITIONS.csv",
-        help="the positions file to write (conventions section 4): one row per static window",
+        help="the positions file to write (docs/reference.md#positions): one row per static window",
     )
     p.add_argument(
         "--report",

@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "simulate",
         help="simulate a static multi-position session and write its positions CSV",
-        description="Simulate the window means of a static session (conventions section 4). "
+        description="Simulate the window means of a static session (docs/reference.md#positions). "
         "Truth defaults to seed 000 Table 2 (gyro) and the project's accelerometer stand-in. "
         "With --capture, simulate every sample (static holds joined by slews) and write the "
         "bytes a KVH would send (delta angle in rad, accel in g, whole-degC temperature); the "
@@ -65,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="number of positions: random and vessel designs (default 24); the 24 design has 24",
     )
     p.add_argument(
-        "--truth", metavar="FILE", help="truth coefficients JSON (conventions section 5)"
+        "--truth", metavar="FILE", help="truth coefficients JSON (docs/reference.md#coefficients)"
     )
     p.add_argument(
         "--hidden",
@@ -184,7 +184,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="simulate a vessel instead of a calibration session: 'voyage' moors still for "
         "--moor s (to align), then sails legs with speed and heading changes and wave roll; "
         "'static' stays at rest for --duration s. Written with --capture (KVH) or --recording "
-        "(csv, conventions section 9); --track writes the true trajectory",
+        "(csv, docs/reference.md#csv); --track writes the true trajectory",
     )
     t.add_argument("--recording", metavar="OUT.csv", help="write the samples as a CSV recording")
     t.add_argument("--track", metavar="TRUTH.csv", help="write the true trajectory (for --truth)")

@@ -1,4 +1,4 @@
-"""The manual's Format A frame (conventions section 6) and the CRC."""
+"""The manual's Format A frame (docs/reference.md#kvh) and the CRC."""
 
 from __future__ import annotations
 

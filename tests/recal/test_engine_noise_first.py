@@ -39,7 +39,7 @@ def test_gyro_without_noise_columns_is_decided_on_the_estimated_noise():
 
 def test_heading_only_design_without_noise_columns_is_partial_on_the_estimated_noise():
     """Decided on the noise estimated from a fit, not on a guess: the vertical axis's scale
-    cannot be told from its bias, so it is held (a partial calibration, conventions section 8)."""
+    cannot be told from its bias, so it is held (a partial calibration, docs/reference.md#cli)."""
     pos = simulate_positions(CoefficientSet.seed_truth(), "vessel", 40, sensors=("gyro",), seed=1)
     res = calibrate(_without(pos, "_std"), CalibrationOptions(sensor="gyro"))
     assert res.observability.noise_decided and res.observability.verdict == "insufficient"

@@ -1,4 +1,4 @@
-"""Rank decides, not counting (conventions section 3): priority order, exactly determined designs,
+"""Rank decides, not counting (docs/reference.md#norms): priority order, exactly determined designs,
 and no R x R matrix on the way."""
 
 import tracemalloc
