@@ -20,11 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from recal.coefficient_schema import SCHEMA, coefficients_block, parse_json, upgrade
 from recal.errors import RecalInputError
 from recal.model import ParameterLayout
 from recal.terms import MISALIGNMENT_NAMES, Term
 
-SCHEMA = "recal.coefficients/1"
+__all__ = ["SCHEMA", "CoefficientSet", "layout_like", "read_coefficients"]
 #: Seed categories stored under the sensor key; everything else goes under "effects".
 _SEED_KEYS = {"scale": "list", "bias": "list", "misalignment": "dict", "quadratic": "list"}
 
@@ -117,9 +118,9 @@ class CoefficientSet:
     def from_json_dict(
         cls, data: Mapping[str, Any], terms: Mapping[str, Term] | None = None, source: str = "JSON"
     ) -> CoefficientSet:
-        """Parse the section 5 layout; unknown sensors or malformed entries are input errors."""
-        if not isinstance(data, Mapping):
-            raise RecalInputError(f"{source}: expected a JSON object with 'gyro' and/or 'accel'")
+        """Parse the section 5 layout; its ``schema`` is checked and an older version migrated
+        (recal.coefficient_schema). Unknown sensors or malformed entries are input errors."""
+        data = upgrade(data, source)
         vals = _parse_layout(data, terms, source, _finite)
         if not vals:
             raise RecalInputError(f"{source}: no coefficients found (expected 'gyro' or 'accel')")
@@ -129,7 +130,24 @@ class CoefficientSet:
                 raise RecalInputError(f"{source}: 'uncertainty' must be an object")
             sigma = _parse_layout(data["uncertainty"], terms, f"{source} uncertainty", _sigma)
         meta = data.get("metadata") or {}
-        return cls(vals, float(data.get("t0_c", 25.0)), dict(meta), sigma)
+        if not isinstance(meta, Mapping):
+            raise RecalInputError(f"{source}: 'metadata' must be an object")
+        t0_c = _finite(data.get("t0_c", 25.0), "t0_c", source, size=1)[0]
+        return cls(vals, float(t0_c), dict(meta), sigma)
+
+
+def read_coefficients(
+    data: str | Mapping[str, Any], terms: Mapping[str, Term] | None = None, source: str = "JSON"
+) -> CoefficientSet:
+    """A coefficients file's content (JSON text or the parsed object), or a ``calibrate --json``
+    document / stored version, as a :class:`CoefficientSet`: schema checked, older versions
+    migrated, the document's uncertainty used when its coefficients carry none. No file I/O:
+    the caller opens the file and passes its text."""
+    obj = parse_json(data, source) if isinstance(data, str) else data
+    block = coefficients_block(obj, source)
+    cs = CoefficientSet.from_json_dict(block, terms, source)
+    cs.metadata["source"] = source
+    return cs
 
 
 def _parse_layout(

@@ -26,6 +26,7 @@ in body axes per position as ``B_N north + B_E east + B_U gravity_direction``.
 from __future__ import annotations
 
 import sys
+import types
 from collections import ChainMap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -64,6 +65,37 @@ def plugin_file(term: Term) -> str | None:
 
 
 # ------------------------------------------------------------------ validation on load
+def load_plugin_source(source: str, path: str) -> list[Term]:
+    """The checked ``TERMS`` of a plugin whose Python ``source`` (already read from ``path`` by
+    the caller) is run as module ``recal_plugin_<stem>``. Not Python, a syntax error, an
+    exception while it runs or a missing or bad ``TERMS``: a one-line RecalInputError."""
+    stem = path.replace("\\", "/").rsplit("/", 1)[-1].split(".", 1)[0]
+    name = f"recal_plugin_{stem}"
+    try:
+        code = compile(source, path, "exec")
+    except SyntaxError as exc:
+        where = f" on line {exc.lineno}" if exc.lineno else ""
+        raise RecalInputError(f"plugin {path} is not valid Python: {exc.msg}{where}") from None
+    except ValueError:  # NUL bytes: a binary file
+        raise RecalInputError(f"plugin {path} is not Python source (it has NUL bytes)") from None
+    module = types.ModuleType(name)
+    module.__file__ = path
+    # registered so dataclasses, pickling and the coefficients file can find the term's file
+    sys.modules[name] = module
+    try:
+        exec(code, module.__dict__)  # noqa: S102 - running the user's plugin is the point
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - user code: report, don't crash
+        sys.modules.pop(name, None)
+        raise RecalInputError(
+            f"plugin {path} failed to load: {type(exc).__name__}: {exc}"
+        ) from None
+    terms = getattr(module, "TERMS", None)
+    if not isinstance(terms, list | tuple) or not terms:
+        sys.modules.pop(name, None)
+        raise RecalInputError(f"plugin {path} must define TERMS = [recal.terms.Term, ...]")
+    return validate_terms(terms, path)
+
+
 def validate_terms(terms: Sequence[Any], path: str) -> list[Term]:
     """The plugin's terms, checked; raises :class:`RecalInputError` naming file, term, problem."""
     seen: set[str] = set()

@@ -182,11 +182,10 @@ def load_slews(args: argparse.Namespace, positions=None):
     or written for another positions file: ignored with one line on stderr saying why, an
     error with an explicit --slews). Nothing is announced as used here: whether the fit uses
     them is known only after it (:func:`announce_slews`)."""
-    from pathlib import Path
 
     from recal.errors import RecalInputError
     from recal.slews import Slews
-    from service.cli.common import load_positions
+    from service.cli.common import load_positions, read_bytes
     from service.cli.positions import slews_path
 
     use = getattr(args, "slews", None)  # diagnose: when the side file exists
@@ -197,10 +196,7 @@ def load_slews(args: argparse.Namespace, positions=None):
         if use:
             raise RecalInputError(f"--slews: no slews file {path} (made by `recal positions`)")
         return None
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise RecalInputError(f"cannot read {path}: {exc.strerror or exc}") from None
+    data = read_bytes(path, "slews file")
     slews = Slews.from_npz_bytes(data, str(path))
     why = side_file_mismatch(slews, positions if positions is not None else load_positions(
         args.positions))  # fmt: skip

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
+import stat
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-from recal.errors import RecalInputError  # a plain exception class: imports nothing
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 if TYPE_CHECKING:
     from recal.coefficients import CoefficientSet
@@ -18,25 +16,60 @@ if TYPE_CHECKING:
     from recal.terms import Term
 
 
-def read_bytes(path: str | os.PathLike[str], what: str = "file") -> bytes:
-    """A file's bytes; a missing, unreadable or directory path is a one-line input error."""
+def _input_error(message: str) -> Exception:
+    # imported when raised: drivers.errors (the InputError base) is not needed to build the parser
+    from service.cli.errors import CliInputError
+
+    return CliInputError(message)
+
+
+def open_input(
+    path: str | os.PathLike[str], what: str = "file", empty_ok: bool = False
+) -> BinaryIO:
+    """Open an input file for reading bytes; every way it can fail is a one-line input error
+    naming ``what`` and the path: missing, a directory, not permitted, empty (a regular file of
+    0 bytes, unless ``empty_ok``), or any other OS error. The caller closes the file."""
     p = Path(path)
     try:
-        return p.read_bytes()
+        fh = p.open("rb")
     except FileNotFoundError:
-        raise RecalInputError(f"{what} {p} does not exist") from None
+        raise _input_error(f"{what} {p} does not exist") from None
     except IsADirectoryError:
-        raise RecalInputError(f"{what} {p} is a directory") from None
+        raise _input_error(f"{what} {p} is a directory, not a file") from None
+    except PermissionError:
+        raise _input_error(f"{what} {p}: permission denied") from None
     except OSError as exc:
-        raise RecalInputError(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+        raise _input_error(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+    info = os.fstat(fh.fileno())
+    if stat.S_ISDIR(info.st_mode):  # some systems open a directory without complaint
+        fh.close()
+        raise _input_error(f"{what} {p} is a directory, not a file")
+    if stat.S_ISREG(info.st_mode) and info.st_size == 0 and not empty_ok:
+        fh.close()
+        raise _input_error(f"{what} {p} is empty")
+    return fh
 
 
-def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
-    data = read_bytes(path, what)
+def read_bytes(path: str | os.PathLike[str], what: str = "file", empty_ok: bool = False) -> bytes:
+    """A file's bytes, opened by :func:`open_input` (same one-line errors)."""
+    with open_input(path, what, empty_ok) as fh:
+        try:
+            return fh.read()
+        except OSError as exc:
+            raise _input_error(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+
+
+def read_text(path: str | os.PathLike[str], what: str = "file", empty_ok: bool = False) -> str:
+    """A UTF-8 text file's content (a leading byte-order mark dropped); bytes that are not UTF-8
+    are an input error that says where."""
+    data = read_bytes(path, what, empty_ok)
     try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise RecalInputError(f"{what} {path} is not UTF-8 text") from None
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise _input_error(
+            f"{what} {path} is not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line})"
+        ) from None
 
 
 def atomic_write(path: str | os.PathLike[str], content: str | bytes) -> None:
@@ -45,7 +78,7 @@ def atomic_write(path: str | os.PathLike[str], content: str | bytes) -> None:
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
-        raise RecalInputError(f"output folder {folder} does not exist")
+        raise _input_error(f"output folder {folder} does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder)
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a report or CSV is for sharing
@@ -70,42 +103,22 @@ def load_positions(path: str) -> Positions:
 
 
 def load_coefficients(path: str, terms: dict[str, Term] | None = None) -> CoefficientSet:
-    from recal.coefficients import CoefficientSet
+    """A coefficients file (or a ``calibrate --json`` output): opened here, read by
+    recal.coefficients.read_coefficients (schema checked, older versions migrated)."""
+    from recal.coefficients import read_coefficients
 
-    text = read_text(path, "coefficients file")
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RecalInputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    cs = CoefficientSet.from_json_dict(data, terms, source=str(path))
-    cs.metadata.setdefault("source", str(path))
-    cs.metadata["source"] = str(path)
-    return cs
+    return read_coefficients(read_text(path, "coefficients file"), terms, source=str(path))
 
 
 def load_plugin(path: str) -> list[Term]:
-    """Import a user's Python file defining ``TERMS = [Term, ...]`` (see recal.plugins); each
-    term is checked (recal.plugins.validate_terms), a mistake is an input error."""
-
-    from recal.plugins import validate_terms
+    """A user's Python file defining ``TERMS = [Term, ...]`` (recal.plugins.load_plugin_source):
+    opened here, a mistake in it is an input error."""
+    from recal.plugins import load_plugin_source
 
     p = Path(path)
-    if not p.is_file():
-        raise RecalInputError(f"plugin {p} does not exist")
-    name = f"recal_plugin_{p.stem}"
-    spec = importlib.util.spec_from_file_location(name, p)
-    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    # registered so dataclasses, pickling and the coefficients file can find the term's file
-    sys.modules[name] = module
-    try:
-        spec.loader.exec_module(module)  # type: ignore[union-attr]
-    except Exception as exc:  # noqa: BLE001 - user code: report, don't crash
-        sys.modules.pop(name, None)
-        raise RecalInputError(f"plugin {p} failed to load: {type(exc).__name__}: {exc}") from None
-    terms = getattr(module, "TERMS", None)
-    if not isinstance(terms, (list, tuple)) or not terms:
-        raise RecalInputError(f"plugin {p} must define TERMS = [recal.terms.Term, ...]")
-    return validate_terms(terms, str(p))
+    if p.suffix != ".py":
+        raise _input_error(f"plugin {p} is not a Python file (expected FILE.py)")
+    return load_plugin_source(read_text(p, "plugin"), str(p))
 
 
 def parse_effects(text: str | None) -> list[str]:

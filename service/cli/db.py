@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def _url(args: argparse.Namespace) -> str:
     import os
 
-    from service.cli.main import CliInputError
+    from service.cli.errors import CliInputError
 
     if args.database:
         return args.database
@@ -55,7 +55,7 @@ def _open(args: argparse.Namespace, create: bool):  # -> Store
     """The Store of the URL; a StoreError or an unusable SQLite path is bad input (exit 2)."""
     from pathlib import Path
 
-    from service.cli.main import CliInputError
+    from service.cli.errors import CliInputError
     from service.db import Store, StoreError
     from service.startup import _check_sqlite_folder, _sqlite_folder
 
@@ -89,7 +89,7 @@ def _describe(version: int | None, revision: str | None) -> str:
 def run_upgrade(args: argparse.Namespace) -> int:
     import logging
 
-    from service.cli.main import CliInputError
+    from service.cli.errors import CliInputError
     from service.db import StoreError
 
     store = _open(args, create=True)
@@ -115,7 +115,7 @@ def run_upgrade(args: argparse.Namespace) -> int:
 
 
 def run_current(args: argparse.Namespace) -> int:
-    from service.cli.main import CliInputError
+    from service.cli.errors import CliInputError
     from service.db import StoreError
 
     store = _open(args, create=False)

@@ -13,7 +13,6 @@ Only argparse is imported to build the parser; numpy and recal are imported by r
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
@@ -97,26 +96,16 @@ def run(args: argparse.Namespace) -> int:
 def _load(path: str):
     """A coefficients file, or a ``calibrate --json`` output (its coefficients + uncertainty),
     and its ``"covariance"`` block (names + matrix) when it has one."""
+    from recal.coefficient_schema import coefficients_block, parse_json
     from recal.coefficients import CoefficientSet
     from recal.errors import RecalInputError
     from recal.terms import catalogue_terms
     from service.cli.common import read_text
 
-    try:
-        data = json.loads(read_text(path, "coefficients file"))
-    except json.JSONDecodeError as exc:
-        raise RecalInputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if isinstance(data, dict) and "coefficients" in data and not {"gyro", "accel"} & set(data):
-        inner = data["coefficients"]
-        if isinstance(inner, dict):
-            data = {
-                **inner,
-                "uncertainty": inner.get("uncertainty", data.get("uncertainty")),
-                "covariance": inner.get("covariance", data.get("covariance")),
-            }
+    data = coefficients_block(parse_json(read_text(path, "coefficients file"), path), path)
     cs = CoefficientSet.from_json_dict(data, catalogue_terms(), source=str(path))
     cs.metadata["source"] = str(path)
-    covariance = data.get("covariance") if isinstance(data, dict) else None
+    covariance = data.get("covariance")
     if covariance is not None and not isinstance(covariance, dict):
         raise RecalInputError(f"{path}: 'covariance' must be an object with names and matrix")
     return cs, covariance

@@ -36,21 +36,11 @@ SUBCOMMANDS: tuple[str, ...] = (
 )
 
 
-class CliInputError(Exception):
-    """Bad input detected by the CLI layer itself (exit code 2)."""
+def _is_input_error(exc: BaseException) -> bool:
+    # imported only when a command has failed: building the parser stays light
+    from drivers.errors import InputError
 
-
-def _input_error_types() -> tuple[type[BaseException], ...]:
-    from recal.errors import RecalInputError  # imported after parsing: --help stays light
-
-    types: list[type[BaseException]] = [RecalInputError, CliInputError]
-    try:  # drivers may define their own input error; it is optional here
-        from drivers.errors import DriverInputError  # type: ignore[import-not-found]
-
-        types.append(DriverInputError)
-    except ImportError:
-        pass
-    return tuple(types)
+    return isinstance(exc, InputError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -106,15 +96,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except _input_error_types() as exc:
-        print(f"recal {args.command}: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print(f"recal {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0
-    except Exception as exc:  # noqa: BLE001 - the one place internal errors become exit code 1
+    except Exception as exc:  # noqa: BLE001 - the one place exit codes 2 and 1 are decided
+        if _is_input_error(exc):
+            # bad input from any layer (drivers, engine, CLI): one line, no traceback
+            print(f"recal {args.command}: error: {exc}", file=sys.stderr)
+            return 2
         if args.debug or os.environ.get("RECAL_DEBUG"):
             import traceback
 

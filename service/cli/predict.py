@@ -56,18 +56,15 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def _load(path: str) -> tuple[Any, dict[str, Any] | None]:
     """(CoefficientSet, the calibrate JSON's uncertainty section or None)."""
-    from recal.coefficients import CoefficientSet
+    from recal.coefficient_schema import parse_json
+    from recal.coefficients import read_coefficients
     from recal.errors import RecalInputError
     from service.cli.common import read_text
 
-    try:
-        data = json.loads(read_text(path, "coefficients file"))
-    except json.JSONDecodeError as exc:
-        raise RecalInputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    data = parse_json(read_text(path, "coefficients file"), path)
     if not isinstance(data, dict):
         raise RecalInputError(f"{path}: expected a JSON object")
-    block = data.get("coefficients", data)  # calibrate --json, or the section 5 layout itself
-    cs = CoefficientSet.from_json_dict(block, source=path)
+    cs = read_coefficients(data, source=path)  # calibrate --json, or the section 5 layout itself
     return cs, data.get("uncertainty") if isinstance(data.get("uncertainty"), dict) else None
 
 
