@@ -133,15 +133,17 @@ def test_following_1khz_costs_little_cpu(tmp_path) -> None:
             if due > time.monotonic():
                 time.sleep(due - time.monotonic())
             os.write(device.master, data[36 * k : 36 * (k + 1)])
+        written = time.monotonic()  # the last frame left the device (late on a busy machine)
         assert _wait_until(lambda: reader.health().counters.frames == 2000)
-        cpu, wall = _thread_cpu(reader._thread) - c0, time.monotonic() - t0
         h = reader.health()
-        assert h.state == "ok" and h.seconds_since_last_byte < 0.5 and h.problem is None
+        cpu, wall = _thread_cpu(reader._thread) - c0, time.monotonic() - t0
+        assert h.state == "ok" and h.seconds_since_last_byte < 1.0 and h.problem is None
     finally:
         assert reader.stop(timeout=2.0)
         device.unplug()
     assert cpu < 0.05 * wall, (cpu, wall)
     assert len(got) <= 30 * wall  # ~20 deliveries a second, not one per frame
     assert np.mean([len(b) for b in got]) >= 25
-    latency = max(b.host_time_s[-1] for b in got) - t0 - 2.0
-    assert latency < 0.5
+    # the last frame is delivered soon after it was written, not held for a fuller read
+    latency = max(b.host_time_s[-1] for b in got) - written
+    assert latency < 0.5, latency
