@@ -1,4 +1,4 @@
-"""IMU logs as CSV (conventions section 9): a header row, then one row per sample.
+"""IMU logs as CSV (docs/reference.md#csv): a header row, then one row per sample.
 
 Columns (any order, extra columns ignored): ``time_s`` (optional when a sample rate is given),
 ``gyro_x``, ``gyro_y``, ``gyro_z``, ``accel_x``, ``accel_y``, ``accel_z`` (either triad may be

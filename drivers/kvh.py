@@ -1,4 +1,4 @@
-"""KVH 1750 / 1775 / DSP-1760 serial frames (conventions section 6): Formats A, B, C and BIT.
+"""KVH 1750 / 1775 / DSP-1760 serial frames (docs/reference.md#kvh): Formats A, B, C and BIT.
 
 Big-endian; CRC-32/MPEG-2 over every byte before the CRC, header included.
 """

@@ -1,4 +1,4 @@
-"""Calibration coefficients as a typed, versioned object (conventions section 5).
+"""Calibration coefficients as a typed, versioned object (docs/reference.md#coefficients).
 
 A :class:`CoefficientSet` maps term names (``"gyro.scale"``, ``"accel.misalignment"``, catalogue
 effects...) to parameter arrays. It converts to and from the JSON layout users script against:
@@ -31,7 +31,7 @@ _SEED_KEYS = {"scale": "list", "bias": "list", "misalignment": "dict", "quadrati
 
 #: Seed 000 Table 2: the preset FOG coefficients of the paper (K in counts per deg/h,
 #: b in deg/h, E dimensionless; Table 2 prints I + E with a "deg" label that the values do not
-#: support, conventions section 1 reads them as rad).
+#: support, docs/reference.md#models reads them as rad).
 SEED_000_TABLE2: dict[str, np.ndarray] = {
     "gyro.scale": np.array([643.50373651, 645.62852456, 645.17583651]),
     "gyro.bias": np.array([0.01562779, 0.03213767, 0.02793626]),

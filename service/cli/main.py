@@ -8,7 +8,7 @@ Building the parser imports only argparse-level modules: each subcommand module 
 the engine and the drivers inside its ``run``, so ``recal --help`` and a command pay only for
 what they use.
 
-Exit codes (conventions section 8): 0 success, 2 bad input or unusable design (one line on
+Exit codes (docs/reference.md#cli): 0 success, 2 bad input or unusable design (one line on
 stderr, no traceback), 1 internal error.
 """
 

@@ -111,7 +111,7 @@ def test_held_part_comes_from_the_prior():
 
 @pytest.mark.parametrize("sensor", ["gyro", "accel", "both"])
 def test_heading_only_vessel_design_is_a_partial_calibration(sensor):
-    """Conventions section 8: what the design shows is estimated, the scale factors and biases
+    """docs/reference.md#cli: what the design shows is estimated, the scale factors and biases
     it cannot separate are held at the prior (with its uncertainty) and the notes say so; the
     verdict stays "insufficient" so a gate refuses to publish it."""
     sensors = ("gyro", "accel") if sensor == "both" else (sensor,)
