@@ -24,8 +24,22 @@ def check_startup(settings: Settings) -> None:
 
 
 def check_prior(path: str | None) -> None:
-    if path is not None and not Path(path).is_file():
+    """The prior file exists and reads as coefficients: a newer or foreign ``schema`` stops the
+    daemon at start (exit 2 naming it), not at its first recalibration."""
+    if path is None:
+        return
+    if not Path(path).is_file():
         raise RecalInputError(f"prior_path: {path} is not a file")
+    from recal.coefficients import read_coefficients
+
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecalInputError(f"prior_path: cannot read {path} as UTF-8 text: {exc}") from None
+    try:
+        read_coefficients(text, source=path)
+    except RecalInputError as exc:
+        raise RecalInputError(f"prior_path: {exc}") from None
 
 
 def check_database(url: str, timeout_s: float = 5.0) -> None:

@@ -154,3 +154,14 @@ def test_calibrate_reads_a_hand_written_prior(positions: Path, capsys) -> None:
     assert main(["calibrate", str(positions), "--prior", str(prior), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["coefficients"]["schema"] == SCHEMA
+
+
+def test_service_prior_path_with_newer_schema_stops_the_daemon_at_start(tmp_path: Path) -> None:
+    from service.startup import check_prior
+
+    prior = tmp_path / "prior.json"
+    prior.write_text(json.dumps({**hand_written(), "schema": "recal.coefficients/3"}))
+    with pytest.raises(InputError, match=r"^prior_path: .*prior.json: schema recal.coefficients/3"):
+        check_prior(str(prior))
+    prior.write_text(json.dumps(hand_written()))
+    check_prior(str(prior))  # a hand-written prior starts
