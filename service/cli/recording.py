@@ -173,7 +173,7 @@ def order_pair(inputs: list[str]) -> tuple[str, str]:
 
 # ---- CSV log --------------------------------------------------------------------------------
 class CsvRecording(Recording):
-    """A CSV log (conventions section 9) parsed by drivers.csv_log.CsvLogParser."""
+    """A CSV log (docs/reference.md#csv) parsed by drivers.csv_log.CsvLogParser."""
 
     def __init__(self, inputs: list[str], columns: str | None, rate: float | None) -> None:
         from drivers.csv_log import CsvLogParser, parse_column_map
