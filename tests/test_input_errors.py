@@ -78,7 +78,7 @@ def test_open_input_names_each_failure(tmp_path: Path) -> None:
         open_input(tmp_path, "positions file")
     empty = tmp_path / "empty.csv"
     empty.write_bytes(b"")
-    with pytest.raises(CliInputError, match=r"^positions file .*empty.csv is empty$"):
+    with pytest.raises(CliInputError, match=r"^positions file .*empty.csv: the file is empty$"):
         open_input(empty, "positions file")
     with open_input(empty, "log", empty_ok=True) as fh:
         assert fh.read() == b""
@@ -104,7 +104,7 @@ def test_open_input_permission_denied(tmp_path: Path) -> None:
     ("name", "content", "reason"),
     [
         ("notes.bin", b"\x00\x01binary notes", "is not a Python file (expected FILE.py)"),
-        ("empty.py", b"", "is empty"),
+        ("empty.py", b"", "the file is empty"),
         ("broken.py", b"def (:\n", "is not valid Python: invalid syntax on line 1"),
         ("nul.py", b"TERMS = []\x00\n", "is not"),
         ("latin.py", b"# \xe9\nTERMS = []\n", "is not UTF-8 text"),
@@ -125,7 +125,7 @@ def test_bad_plugin_files_exit_2_with_one_line(
         plugin.write_bytes(content)
     assert main(["diagnose", str(positions), "--plugin", str(plugin)]) == 2
     line = _error_line(capsys)
-    assert line.startswith(f"recal diagnose: error: plugin {plugin} ") and reason in line
+    assert line.startswith(f"recal diagnose: error: plugin {plugin}") and reason in line
 
 
 def test_plugin_from_source_registers_its_terms() -> None:

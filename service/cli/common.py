@@ -46,7 +46,7 @@ def open_input(
         raise _input_error(f"{what} {p} is a directory, not a file")
     if stat.S_ISREG(info.st_mode) and info.st_size == 0 and not empty_ok:
         fh.close()
-        raise _input_error(f"{what} {p} is empty")
+        raise _input_error(f"{what} {p}: the file is empty")
     return fh
 
 
