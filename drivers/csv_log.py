@@ -289,3 +289,113 @@ class CsvLogParser:
             f"line {number}, column {name!r}: time {float(t[i])!r} s does not come after "
             f"{before!r} s (time must increase)"
         )
+
+
+# ---- csv as a registered input format (drivers.registry) -----------------------------------
+class CsvStreamParser:
+    """A CSV log or line stream: whole lines in, :class:`drivers.FrameBatch` out.
+
+    columns: ``NEW=OLD,...`` (``--columns``). rate_hz: time = row / rate without a time
+    column. header: the header row, when the stream's own went by before it was joined (then
+    every line fed is data). A missing triad is zeros; a NaN gyro or accel cell marks the
+    sample invalid; with a time column, lost samples come from its steps (drivers.gaps).
+    """
+
+    def __init__(
+        self,
+        name: str = "csv",
+        source: str = "<csv>",
+        columns: str | None = None,
+        rate_hz: float | None = None,
+        header: str | None = None,
+    ) -> None:
+        from .frames import DecoderCounters
+        from .gaps import GapCounter
+
+        self.name = name
+        self.source = source
+        self.sample_rate_hz = rate_hz
+        self.gyro_limits = None
+        self._parser = CsvLogParser(parse_column_map(columns), rate_hz, source)
+        if header is not None:
+            if not header.strip():
+                raise DriverInputError("the csv header is empty: give the column names")
+            self._parser.feed(header.strip().encode("utf-8") + b"\n")
+        self._gaps = GapCounter()
+        self.counters = DecoderCounters()
+
+    @property
+    def layout(self) -> CsvLayout | None:
+        return self._parser.layout
+
+    @property
+    def triads(self) -> tuple[str, ...] | None:
+        """The triads the log holds (None until its header is read)."""
+        return None if self.layout is None else self.layout.triads
+
+    @property
+    def has_temperature(self) -> bool:
+        return self.layout is not None and self.layout.has_temperature
+
+    @property
+    def byte_rate(self) -> float | None:
+        """About 80 bytes a line at the configured rate (paces the reader)."""
+        return None if self.sample_rate_hz is None else 80.0 * self.sample_rate_hz
+
+    def feed(self, data, host_time: float = math.nan, part: int = 0):
+        self.counters.bytes_in += len(data)
+        return self._out(self._parser.feed(data), host_time, end=False)
+
+    def flush(self, host_time: float = math.nan):
+        """End of the stream (or a reconnect): the samples held to learn the period."""
+        return self._out(None, host_time, end=True)
+
+    def finish(self) -> None:
+        """End of a recording: an empty log or one without data rows is an error."""
+        self._parser.flush()
+
+    def notes(self) -> list[str]:
+        layout = self.layout
+        if layout is None:
+            return []
+        what = " and ".join(layout.triads)
+        if len(layout.triads) == 1:
+            what += f" only (no {'accel' if layout.triads == ('gyro',) else 'gyro'} columns)"
+        time = (
+            f"time from column {layout.source_of(TIME)!r}"
+            if layout.has_time
+            else f"time from --rate {self.sample_rate_hz:g} Hz"
+        )
+        temp = "temperature" if layout.has_temperature else "no temperature"
+        rows = self._parser.rows
+        return [f"csv: {rows} rows of {what}, {temp}, {time}; output units as in the file"]
+
+    def _out(self, chunk: LogChunk | None, host_time: float, end: bool):
+        from .frames import FrameBatch
+
+        batch = None
+        if chunk is not None and len(chunk):
+            zeros = np.zeros((len(chunk), 3))
+            batch = FrameBatch.from_samples(
+                self.name,
+                chunk.time_s,
+                zeros if chunk.gyro is None else chunk.gyro,
+                zeros if chunk.accel is None else chunk.accel,
+                chunk.temperature_c,
+                first_seq=self.counters.frames,
+                host_time=host_time,
+            )
+            self.counters.frames += len(batch)
+        if self.layout is not None and not self.layout.has_time:
+            out = batch  # time from the rate: no gaps to find
+        else:
+            out = self._gaps.push(batch) if batch is not None else None
+            if end:
+                held = self._gaps.drain()
+                out = held if out is None else out
+        return out if out is not None else FrameBatch.empty(self.name)
+
+
+def csv_parser(name: str, source: str = "<csv>", **options) -> CsvStreamParser:
+    """The registry's factory (options: columns, rate_hz, header)."""
+    return CsvStreamParser(name, source, **options)

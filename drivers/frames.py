@@ -87,6 +87,40 @@ class FrameBatch:
         ext = {name: np.concatenate([b.extra[name] for b in batches]) for name in batches[0].extra}
         return FrameBatch(format=fmt, extra=ext, **cols)
 
+    @classmethod
+    def from_samples(
+        cls,
+        fmt: str,
+        time_s: np.ndarray,
+        gyro: np.ndarray,
+        accel: np.ndarray,
+        temperature_c: np.ndarray | None = None,
+        first_seq: int = 0,
+        host_time: float = float("nan"),
+    ) -> FrameBatch:
+        """A batch of samples from a format without frames (text, CSV): seq counts samples
+        from ``first_seq``; valid where gyro and accel are finite; no status or magnetometer;
+        temperature NaN when not given; lost_before 0 (drivers.gaps fills it)."""
+        n = int(time_s.shape[0])
+        gyro = np.asarray(gyro, dtype=np.float64)
+        accel = np.asarray(accel, dtype=np.float64)
+        valid = np.isfinite(gyro).all(axis=1) & np.isfinite(accel).all(axis=1)
+        return cls(
+            format=fmt,
+            seq=np.arange(first_seq, first_seq + n, dtype=np.int64),
+            time_s=np.asarray(time_s, dtype=np.float64),
+            host_time_s=np.full(n, host_time),
+            gyro_dph=gyro,
+            accel_g=accel,
+            temperature_c=np.full(n, np.nan)
+            if temperature_c is None
+            else np.asarray(temperature_c, dtype=np.float64),
+            mag_gauss=np.full((n, 3), np.nan),
+            status=np.where(valid, VALID_STATUS, 0).astype(np.uint8),
+            valid=valid,
+            lost_before=np.zeros(n, dtype=np.int64),
+        )
+
     def columns(self) -> dict[str, np.ndarray]:
         """The common columns by name (without format and extra)."""
         return {name: getattr(self, name) for name in COLUMNS}

@@ -1,4 +1,10 @@
-"""A reader thread that owns a port: reads, decodes, delivers, and survives unplugging."""
+"""A reader thread that owns a port: reads, parses, delivers, and survives unplugging.
+
+Any registered input format (drivers.registry): a binary format's parser is fed every read; a
+line format's is fed whole lines (drivers.lines.LineSplitter carries a partial line across
+reads), and a line it rejects is skipped and counted, not fatal: a serial line garbles a line
+now and then, and a port opened mid-stream starts inside one.
+"""
 
 from __future__ import annotations
 
@@ -12,10 +18,11 @@ from dataclasses import dataclass
 import serial
 
 from .config import DEFAULT_CONFIG, DecoderConfig
-from .decoder import StreamDecoder
-from .diagnose import diagnose
-from .formats import FrameFormat, get_format
+from .errors import DriverInputError
+from .formats import FrameFormat
 from .frames import DecoderCounters, FrameBatch
+from .lines import LineSplitter
+from .registry import get_input_format
 from .transport import DEFAULT_BAUD, check_url, open_serial, read_chunk, read_size_for
 
 log = logging.getLogger(__name__)
@@ -56,8 +63,12 @@ class ReaderHealth:
 
 
 class FrameReader:
-    """Read ``url`` in a thread, decode, and hand each non-empty FrameBatch to ``on_batch``
+    """Read ``url`` in a thread, parse, and hand each non-empty FrameBatch to ``on_batch``
     and/or put it on ``queue`` (never blocking: a full queue drops the batch and counts it).
+
+    The format: ``fmt`` and ``config`` (a KVH frame format), or ``fmt`` an input format name
+    with its ``options`` (e.g. ``"csv"``, ``{"columns": "accel_x=ax,...", "rate_hz": 100}``),
+    or a ready ``parser`` (drivers.registry.StreamParser; ``fmt`` then names its format).
 
     On SerialException or OSError the port is closed, the partial frame dropped (sequence
     continuity kept, so lost frames show as a sequence gap), and the port re-opened after a
@@ -81,8 +92,23 @@ class FrameReader:
         name: str = "frame-reader",
         latency: float = 0.05,
         silence_s: float = 1.0,
+        options: dict | None = None,
+        parser: object | None = None,
     ) -> None:
         check_url(url, must_exist=False)
+        if parser is None:
+            parser = _make_parser(fmt, config, options or {}, url)
+        spec = _input_spec(fmt)
+        framing = "binary" if spec is None else spec.framing
+        if spec is not None:
+            if spec.inputs != 1:
+                raise DriverInputError(
+                    f"format {spec.name} is read from {spec.inputs} files side by side; a "
+                    "port carries one stream"
+                )
+        self._parser = parser
+        self._lines = LineSplitter() if framing == "lines" else None
+        self.lines_skipped = 0
         self.url = url
         self.baudrate = baudrate
         self.read_size = read_size
@@ -90,13 +116,13 @@ class FrameReader:
         self.silence_s = silence_s
         # Each read waits for about `latency` s of data at the configured rate (bounded by
         # `timeout`): ~20 reads/s at the defaults, whatever the rate, instead of one per byte.
-        self.byte_rate = config.rate_hz * get_format(fmt).length
+        # A line format's parser may not know its byte rate: then reads wait on the timeout.
+        self.byte_rate = getattr(parser, "byte_rate", None) or 0.0
         self.min_read = read_size_for(self.byte_rate, latency, read_size)
         self.backoff_initial = backoff_initial
         self.backoff_max = backoff_max
         self._on_batch = on_batch
         self._queue = queue
-        self._decoder = StreamDecoder(fmt, config)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -111,6 +137,8 @@ class FrameReader:
         self._away_since: float | None = time.monotonic()
         self._connected_at: float | None = None
         self._dropped = 0
+        self._skip_first = False
+        self._skip_reason = ""
 
     def start(self) -> FrameReader:
         self._thread.start()
@@ -144,7 +172,9 @@ class FrameReader:
     def health(self) -> ReaderHealth:
         with self._lock:
             now = time.monotonic()
-            counters = self._decoder.counters.copy()
+            counters = self._parser.counters.copy()
+            if self._lines is not None:
+                counters.bytes_pending = self._lines.pending
             running = self._thread.is_alive()
             connected = self._connected
             last_byte = self._last_byte_time
@@ -169,7 +199,7 @@ class FrameReader:
                 reconnect_count=self._reconnects,
                 counters=counters,
                 last_error=self._last_error,
-                diagnosis=diagnose(counters, self._decoder.format),
+                diagnosis=self._diagnosis(),
                 dropped_batches=self._dropped,
                 last_byte_time=last_byte,
                 seconds_since_last_byte=None if last_byte is None else now - last_byte,
@@ -181,6 +211,15 @@ class FrameReader:
                 state=state,
                 problem=problem,
             )
+
+    def _diagnosis(self) -> str | None:
+        """The parser's word on a mis-set format (binary formats), or the last skipped line."""
+        diagnosis = getattr(self._parser, "diagnosis", None)
+        if diagnosis is not None:
+            return diagnosis()
+        if self.lines_skipped:
+            return f"{self.lines_skipped} line(s) skipped as unreadable; last: {self._skip_reason}"
+        return None
 
     def _set_error(self, text: str) -> None:
         """Record an error (call with the lock held)."""
@@ -224,7 +263,10 @@ class FrameReader:
             if exc is not None:
                 self._set_error(f"{self.url}: {exc}")
                 log.warning("%s: port lost (%s); re-opening", self.url, exc)
-            self._decoder.flush()
+            if self._lines is not None:
+                self._lines.drop()  # the line was cut; the next one after re-opening may be too
+                self._skip_first = True
+            self._parser.flush()
 
     def _deliver(self, batch: FrameBatch) -> None:
         if self._on_batch is not None:
@@ -240,6 +282,29 @@ class FrameReader:
             except queue_mod.Full:
                 with self._lock:
                     self._dropped += 1
+
+    def _parse(self, data: bytes, now: float) -> FrameBatch:
+        """Feed the parser (call with the lock held); a line format's bad lines are skipped."""
+        if self._lines is None:
+            return self._parser.feed(data, host_time=now)
+        block = self._lines.feed(data)
+        if self._skip_first and block:  # re-opened: the first line may be the tail of one
+            block = block[block.index(b"\n") + 1 :]
+            self._skip_first = False
+        if not block:
+            return FrameBatch.empty(self._parser.name)
+        try:
+            return self._parser.feed(block, host_time=now)
+        except DriverInputError:
+            pass
+        batches = []  # one line at a time: keep the good ones
+        for line in block.splitlines(keepends=True):
+            try:
+                batches.append(self._parser.feed(line, host_time=now))
+            except DriverInputError as exc:
+                self.lines_skipped += 1
+                self._skip_reason = str(exc)
+        return FrameBatch.concat(batches) if batches else FrameBatch.empty(self._parser.name)
 
     def _run(self) -> None:
         delay = self.backoff_initial
@@ -270,10 +335,36 @@ class FrameReader:
                 now = time.monotonic()
                 with self._lock:
                     self._last_byte_time = now
-                    batch = self._decoder.feed(data, host_time=now)
+                    batch = self._parse(data, now)
                     if len(batch):
                         self._last_frame_time = now
                 if len(batch):
                     self._deliver(batch)
         finally:
             self._drop_port(None)
+
+
+def _make_parser(fmt: str | FrameFormat, config: DecoderConfig, options: dict, url: str):
+    """The parser of a format: a KVH frame format with its DecoderConfig, or any input format
+    with its options."""
+    from .kvh_stream import kvh_parser
+
+    spec = _input_spec(fmt)
+    if spec is None:
+        return kvh_parser(fmt, source=url, config=config)
+    if spec.factory() is kvh_parser and not options:
+        return kvh_parser(spec.name, source=url, config=config)
+    return spec.make_parser(source=url, **options)
+
+
+def _input_spec(fmt: str | FrameFormat):
+    """The registered input format, or None for a frame format only (e.g. kvh-bit)."""
+    if isinstance(fmt, FrameFormat):
+        return None
+    try:
+        return get_input_format(fmt)
+    except DriverInputError:
+        from .formats import get_format
+
+        get_format(fmt)  # unknown everywhere: its error names the frame formats
+        return None

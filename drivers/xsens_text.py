@@ -276,3 +276,93 @@ def load_xsens_pair(
 
 
 _PAIR_KEYS = ("time_s", "accel_counts", "gyro_counts")
+
+
+# ---- xsens-text as a registered input format (drivers.registry) ----------------------------
+#: Gyro output values at which the Xsens unit of the shared recordings saturates (unsigned
+#: 16-bit counts); another unit sets its own (gyro_min, gyro_max).
+GYRO_LIMITS_COUNTS = (0.0, 65535.0)
+
+
+class XsensStreamParser:
+    """The acc file (part 0) and the gyro file (part 1), whole lines in, matched frames out
+    as :class:`drivers.FrameBatch` (raw counts, no temperature; lost frames from time steps).
+
+    ``behind()`` names the part to read next so that neither queue grows.
+    """
+
+    triads = ("gyro", "accel")
+    has_temperature = False
+    byte_rate = None
+
+    def __init__(
+        self,
+        name: str = "xsens-text",
+        source: str | tuple[str, str] = ("acc file", "gyro file"),
+        rate_hz: float | None = None,
+        gyro_min: float = GYRO_LIMITS_COUNTS[0],
+        gyro_max: float = GYRO_LIMITS_COUNTS[1],
+    ) -> None:
+        from .frames import DecoderCounters
+        from .gaps import GapCounter
+
+        acc, gyro = (source, source) if isinstance(source, str) else source
+        if not gyro_min < gyro_max:
+            raise DriverInputError(
+                f"gyro_min ({gyro_min:g}) must be below gyro_max ({gyro_max:g}) counts"
+            )
+        self.name = name
+        self.sources = (acc, gyro)
+        self.sample_rate_hz = rate_hz
+        self.gyro_limits = (float(gyro_min), float(gyro_max))
+        self._pair = XsensPair(acc, gyro)
+        self._parsers = (XsensTextParser(acc), XsensTextParser(gyro))
+        self._gaps = GapCounter()
+        self.counters = DecoderCounters()
+
+    def behind(self) -> int:
+        return 0 if self._pair.behind() == "acc" else 1
+
+    def feed(self, data, host_time: float = float("nan"), part: int = 0):
+        self.counters.bytes_in += len(data)
+        self._pair.add(("acc", "gyro")[part], self._parsers[part].feed(data))
+        return self._out(host_time, end=False)
+
+    def flush(self, host_time: float = float("nan")):
+        return self._out(host_time, end=True)
+
+    def end_part(self, part: int) -> None:
+        """A file has ended: parse its last line; a file without data rows is an error."""
+        self._pair.add(("acc", "gyro")[part], self._parsers[part].flush())
+
+    def finish(self) -> None:
+        self._pair.finish()
+
+    def notes(self) -> list[str]:
+        acc, gyro = self.sources
+        return [f"xsens-text: accel {acc}, gyro {gyro} (raw counts)"]
+
+    def _out(self, host_time: float, end: bool):
+        from .frames import FrameBatch
+
+        frames = self._pair.take()
+        batch = None
+        if frames["time_s"].shape[0]:
+            batch = FrameBatch.from_samples(
+                self.name,
+                frames["time_s"],
+                frames["gyro_counts"],
+                frames["accel_counts"],
+                first_seq=self.counters.frames,
+                host_time=host_time,
+            )
+            self.counters.frames += len(batch)
+        out = self._gaps.push(batch) if batch is not None else None
+        if end and out is None:
+            out = self._gaps.drain()
+        return out if out is not None else FrameBatch.empty(self.name)
+
+
+def xsens_parser(name: str, source="<text>", **options) -> XsensStreamParser:
+    """The registry's factory (options: rate_hz, gyro_min, gyro_max)."""
+    return XsensStreamParser(name, source, **options)

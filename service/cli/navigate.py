@@ -18,7 +18,6 @@ import math
 import sys
 from typing import Any
 
-FORMATS = ("kvh-a", "kvh-b", "kvh-c", "xsens-text", "csv")
 DEFAULT_ALIGN_S = 300.0
 DEFAULT_NAV_RATE_HZ = 10.0  # recal.navigation.DEFAULT_RATE_HZ (no numpy to build the parser)
 DEFAULT_STEP_S = 1.0
@@ -37,7 +36,11 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "or --truth, per coefficient set, best first.",
     )
     p.add_argument("inputs", nargs="+", metavar="RECORDING", help="as for `recal positions`")
-    p.add_argument("--format", required=True, choices=FORMATS, help="input format")
+    from drivers.registry import input_format_names
+
+    p.add_argument(
+        "--format", required=True, choices=input_format_names(), help="input format"
+    )
     p.add_argument(
         "--rate", type=float, metavar="HZ", help="sample rate (as for `recal positions`)"
     )

@@ -16,7 +16,8 @@ consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal
 ``recal calibrate`` uses for the slew invariant. A slew with lost or invalid frames or a
 saturated gyro sample is dropped and counted; its windows stay in the CSV.
 
-Only argparse is imported to build the parser; numpy, recal and drivers are imported by run().
+Only argparse and the light drivers.registry are imported to build the parser; numpy, recal
+and the parsers are imported by run().
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-FORMATS = ("kvh-a", "kvh-b", "kvh-c", "xsens-text", "csv")
+#: Format flags add_kvh_unit_options adds (with their choices), not add_input_options.
+KVH_UNIT_FLAGS = ("--gyro-output", "--gyro-units", "--temp-units")
 _PROGRESS_MIN_BYTES = 16 << 20  # below this a bar would only flicker
 #: Frames per detector feed, counted from the first frame: recal.static.detect_static's slices,
 #: so the stream gives the bulk path's windows to the last bit (any chunking agrees to 1e-15).
@@ -86,7 +88,14 @@ def add_input_options(p: argparse.ArgumentParser) -> None:
         "(time_s, gyro_x..gyro_z, accel_x..accel_z, optional temperature_c; either triad may "
         "be missing)",
     )
-    p.add_argument("--format", required=True, choices=FORMATS, help="input format")
+    from drivers.registry import describe_formats, input_format_names, input_formats
+
+    p.add_argument(
+        "--format",
+        required=True,
+        choices=input_format_names(),
+        help="input format: " + describe_formats(),
+    )
     p.add_argument(
         "--rate",
         type=float,
@@ -101,6 +110,22 @@ def add_input_options(p: argparse.ArgumentParser) -> None:
         help="csv: the file's own column names for the standard ones, e.g. "
         "accel_x=acc_x,accel_y=acc_y,accel_z=acc_z,time_s=t",
     )
+    added = {"--rate", "--columns", *KVH_UNIT_FLAGS}
+    for fmt in input_formats():  # the other options of the registered formats
+        for opt in fmt.options:
+            if opt.flag and opt.flag not in added:
+                added.add(opt.flag)
+                owners = [f.name for f in input_formats() if opt.flag in map(_flag, f.options)]
+                p.add_argument(
+                    opt.flag,
+                    type=opt.parse,
+                    metavar=opt.name.upper(),
+                    help=f"{', '.join(owners)}: {opt.help}",
+                )
+
+
+def _flag(option) -> str | None:
+    return option.flag
 
 
 def add_detector_options(p: argparse.ArgumentParser) -> None:
@@ -198,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
     for line in recording.notes() + report.summary_lines():
         print(f"recal positions: {line}", file=sys.stderr)
     positions = _write(out, windows, recording.triads)
-    if args.format.startswith("kvh"):  # physical units: Earth rate and gravity check them
+    if _units(args.format) == {"gyro": "deg/h", "accel": "g"}:  # Earth rate, gravity check them
         from recal.plausibility import check_units
 
         units = "--gyro-output / --gyro-units"
@@ -223,19 +248,17 @@ def run(args: argparse.Namespace) -> int:
 def add_kvh_unit_options(p: argparse.ArgumentParser) -> None:
     """The KVH output settings a recording was made with (positions and navigate share them)."""
     k = p.add_argument_group("KVH device settings (must match the unit's configuration)")
+    # No argparse defaults: unset means the device default (drivers.DecoderConfig), and a
+    # flag given with another format is an error (service.cli.recording.format_options).
     k.add_argument(
         "--gyro-output",
         choices=("delta", "rate"),
-        default="delta",
         help="ROTFMT: delta angle per sample (default) or rate",
     )
-    k.add_argument(
-        "--gyro-units", choices=("rad", "deg"), default="rad", help="ROTUNITS (default rad)"
-    )
+    k.add_argument("--gyro-units", choices=("rad", "deg"), help="ROTUNITS (default rad)")
     k.add_argument(
         "--temp-units",
         choices=("degC", "centi"),
-        default="degC",
         help="whole degC (default) or hundredths (C_100)",
     )
 
@@ -341,12 +364,11 @@ def _write_report(path: Path, envelope, report, windows, recording, floor, args)
 
 
 def _units(fmt: str) -> dict[str, str]:
-    """Input units of each triad as the recording gives them (see the module doc)."""
-    if fmt.startswith("kvh"):
-        return {"gyro": "deg/h", "accel": "g"}
-    if fmt == "xsens-text":
-        return {"gyro": "counts", "accel": "counts"}
-    return {"gyro": "output units", "accel": "output units"}
+    """Input units of each triad as the recording gives them (the format's registration)."""
+    from drivers.registry import get_input_format
+
+    gyro, accel = get_input_format(fmt).units
+    return {"gyro": gyro, "accel": accel}
 
 
 def _write(out: Path, windows, triads: tuple[str, ...]) -> Any:
