@@ -263,13 +263,11 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
                     settings.detector.learn_s)  # fmt: skip
     service = Service(settings, store, publisher, scheduler, ingest, session_id, events)
     if with_reader:
-        from drivers import DecoderConfig, FrameReader
+        from drivers import FrameReader
 
-        d = settings.device
-        config = DecoderConfig(gyro_output=d.gyro_output, gyro_units=d.gyro_units,
-                               temperature_units=d.temperature_units, rate_hz=d.rate_hz)  # fmt: skip
-        service.reader = FrameReader(d.url, d.format, config, on_batch=ingest.feed,
-                                     baudrate=d.baudrate)  # fmt: skip
+        # any registered format, with the [device] settings it takes (drivers.registry)
+        service.reader = FrameReader(d.url, d.format, options=d.format_options(),
+                                     on_batch=ingest.feed, baudrate=d.baudrate)  # fmt: skip
     events.emit("start", f"service started, reading {settings.device.url}",
                 {"session": session_id})  # fmt: skip
     service.sync_published()  # the file follows the database from the first second
