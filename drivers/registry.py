@@ -240,3 +240,18 @@ def check_options(name: str, options: Mapping[str, Any]) -> None:
 def describe_formats(sep: str = "; ") -> str:
     """Every format as ``name (framing): description``, joined by ``sep`` (--help, docs)."""
     return sep.join(f"{f.name} ({f.framing}): {f.description}" for f in input_formats())
+
+
+def markdown_table() -> str:
+    """The formats as the table in docs/drivers.md (``python -m drivers.registry`` prints it;
+    tests/drivers/test_registry.py checks the docs hold it)."""
+    lines = ["| name | framing | files | options | description |", "|---|---|---|---|---|"]
+    for f in input_formats():
+        options = ", ".join(f"`{o}`" for o in f.option_names) or "none"
+        files = "2 (acc, gyro)" if f.inputs == 2 else "1 (or consecutive parts)"
+        lines.append(f"| `{f.name}` | {f.framing} | {files} | {options} | {f.description} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(markdown_table(), end="")
