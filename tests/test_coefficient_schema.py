@@ -154,6 +154,12 @@ def test_calibrate_reads_a_hand_written_prior(positions: Path, capsys) -> None:
     assert main(["calibrate", str(positions), "--prior", str(prior), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["coefficients"]["schema"] == SCHEMA
+    # a calibrate --json document is a prior too: its coefficients, its uncertainty beside them
+    document = positions.with_name("calibrate.json")
+    document.write_text(json.dumps(out))
+    assert main(["calibrate", str(positions), "--prior", str(document), "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["coefficients"]["metadata"]["prior"].endswith("calibrate.json")
 
 
 def test_service_prior_path_with_newer_schema_stops_the_daemon_at_start(tmp_path: Path) -> None:
