@@ -328,6 +328,12 @@ class Settings(BaseSettings):
     prior_path: str | None = Field(
         None, description="coefficients JSON the first calibration starts from (unset: none)"
     )
+    spool_dir: str | None = Field(
+        None,
+        description="folder where each detected window is made durable until the database has "
+        "it (unset: FILE.spool beside a SQLite FILE; else recal-spool/HOST_PORT_DB in the "
+        "working folder, /var/lib/recal under deploy/recal.service)",
+    )
     device: DeviceSettings = Field(DeviceSettings(), description="the IMU and its link")
     site: SiteSettings = Field(SiteSettings(), description="where the unit is")
     detector: DetectorSettings = Field(

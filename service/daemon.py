@@ -139,6 +139,8 @@ class Service:
         if self.ingest.store_error is not None:
             out.append(f"database: {self.ingest.spooled} window(s) waiting to be stored "
                        f"({self.ingest.store_error})")  # fmt: skip
+        if self.ingest.spool_error is not None:
+            out.append(f"spool: {self.ingest.spool_error}")
         if self.publisher.error is not None:
             out.append(f"publisher: {self.publisher.error}")
         return out
@@ -160,6 +162,7 @@ class Service:
             "windows": self.ingest.windows,
             "windows_spooled": self.ingest.spooled,
             "windows_dropped": self.ingest.windows_dropped,
+            "spool": self.ingest.spool_health(),
             "slews": self.ingest.slews,
             "slews_dropped": dict(self.ingest.slews_dropped),
             "recalibrating": self.scheduler.busy,
@@ -244,8 +247,11 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
     """Open the store, the publisher, the pipeline and (optionally) the serial reader."""
     from service.db import Store
     from service.publish import Publisher
+    from service.spool import Spool, default_spool_dir
 
     publisher = Publisher(settings.publish_path)  # checks the path first: nothing opened yet
+    folder = settings.spool_dir or default_spool_dir(settings.database_url)
+    spool = None if folder is None else Spool(folder)
     store = Store(settings.database_url)
     try:
         store.create_schema()
@@ -260,7 +266,8 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
     device = f"{d.url} {d.format} {d.rate_hz:g} Hz"
     keeper = FloorKeeper(store, device, events, window_frames(config, d.rate_hz))
     ingest = Ingest(store, session_id, config, scheduler.notify, events, keeper,
-                    settings.detector.learn_s)  # fmt: skip
+                    settings.detector.learn_s, spool)  # fmt: skip
+    ingest.replay()  # windows an earlier run made durable go in before any new one
     service = Service(settings, store, publisher, scheduler, ingest, session_id, events)
     if with_reader:
         from drivers import FrameReader

@@ -42,10 +42,10 @@ from sqlalchemy.pool import StaticPool
 
 from recal.positions import CANONICAL_ORDER, Positions
 
-#: Schema version this code writes, kept by the migrations (service/migrations: revision 0002
-#: records 2); a database with a newer one is refused, and so is one at an Alembic revision
+#: Schema version this code writes, kept by the migrations (service/migrations: revision 0003
+#: records 3); a database with a newer one is refused, and so is one at an Alembic revision
 #: this code does not know.
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: Positions columns stored as real columns (docs/reference.md#positions, schema version 1); others,
 #: the optional ``*_sem`` columns included, go to ``extra``.
 POSITION_COLUMNS: tuple[str, ...] = tuple(c for c in CANONICAL_ORDER if not c.endswith("_sem"))
@@ -53,6 +53,10 @@ POSITION_COLUMNS: tuple[str, ...] = tuple(c for c in CANONICAL_ORDER if not c.en
 
 class StoreError(RuntimeError):
     """The database cannot be opened or used; the message is one line."""
+
+
+class UnknownSessionError(StoreError):
+    """Positions for a session this database does not have (retrying cannot help)."""
 
 
 # ---- records ----------------------------------------------------------------------------
@@ -200,6 +204,19 @@ class SlewRow(Base):
     groups: Mapped[int]
     data: Mapped[bytes | None] = mapped_column(LargeBinary)
     dropped: Mapped[str | None] = mapped_column(String(32))
+
+
+class SpoolBatchRow(Base):
+    """A window batch that came through the durable spool (service/spool.py), by its unique
+    key, with the positions it became: stored in the positions' transaction, so replaying a
+    batch whose spool file outlived its commit (a kill in between) stores nothing twice."""
+
+    __tablename__ = "spool_batches"
+
+    key: Mapped[str] = mapped_column(String(64), primary_key=True)
+    session_id: Mapped[int] = mapped_column(ForeignKey("sessions.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    position_ids: Mapped[list[Any]]
 
 
 _missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
@@ -405,6 +422,7 @@ class Store:
         slews: Sequence[tuple[int, int, Any]] = (),
         period_s: float | None = None,
         previous_id: int | None = None,
+        spool_key: str | None = None,
     ) -> list[int]:
         """Store positions (name -> (M,) array, docs/reference.md#positions); returns their ids.
 
@@ -412,6 +430,9 @@ class Store:
         ``slews``: ``(first row, second row, recal.slews.ReducedSlew)`` between these windows,
         stored in the same transaction; row -1 is the window stored before, ``previous_id``
         (a slew whose first window is unknown is skipped). ``period_s``: gyro sample period.
+        ``spool_key``: the batch's spool key; when positions with it are already stored (a
+        replay after a kill between commit and spool delete) nothing is added and their ids are
+        returned.
         """
         table = Positions.from_columns(columns, source=f"positions for session {session_id}")
         known = [c for c in POSITION_COLUMNS if c in table.columns]
@@ -426,12 +447,21 @@ class Store:
         ]
         with self._tx(write=True) as s:
             if s.get(SessionRow, session_id) is None:
-                raise StoreError(f"unknown session {session_id}")
+                raise UnknownSessionError(f"database {self.url}: unknown session {session_id}")
+            if spool_key is not None and (done := _keyed(s, spool_key)):
+                return done  # stored before the spool could delete it: nothing twice
             s.add_all(rows)
             s.flush()
             ids = [r.id for r in rows]
             s.add_all(_slew_rows(slews, ids, previous_id, period_s))
+            if spool_key is not None:  # unique: a concurrent replay of it fails and rolls back
+                s.add(SpoolBatchRow(key=spool_key, session_id=session_id, position_ids=ids))
             return ids
+
+    def keyed_positions(self, spool_key: str) -> list[int]:
+        """The ids of the positions stored with this spool key (empty: not stored)."""
+        with self._tx() as s:
+            return _keyed(s, spool_key)
 
     def slews(self, ids: Sequence[int]) -> list[SlewRecord]:
         """The stored slews between positions of ``ids`` (both ends in it), in id order."""
@@ -647,6 +677,11 @@ class SlewRecord:
     reference: np.ndarray | None
     groups: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
     dropped: str | None
+
+
+def _keyed(s: Session, spool_key: str) -> list[int]:
+    row = s.get(SpoolBatchRow, spool_key)
+    return [] if row is None else [int(i) for i in row.position_ids]
 
 
 def _slew_rows(

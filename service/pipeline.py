@@ -9,12 +9,14 @@ the version and publishes it when accepted.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,8 +32,9 @@ from recal.static import (
     windows_to_columns,
 )
 from service.config import Settings
-from service.db import StoreError
+from service.db import StoreError, UnknownSessionError
 from service.events import Events
+from service.spool import Spool, SpoolEntry, SpoolWriteError, read_entry
 
 log = logging.getLogger("recal.pipeline")
 
@@ -39,7 +42,8 @@ log = logging.getLogger("recal.pipeline")
 DETECTOR_BLOCK = 4096
 #: ... but never hold frames longer than this (host time, s), so slow streams are not delayed.
 DETECTOR_MAX_WAIT_S = 1.0
-#: Windows kept in memory while the database is unavailable (a week of windows at one a minute).
+#: Windows kept in memory while both the database and the spool folder refuse them (a week of
+#: windows at one a minute); windows on disk are not limited.
 SPOOL_MAX = 10_000
 #: Back-off between attempts to store spooled windows, s.
 SPOOL_RETRY_MIN_S, SPOOL_RETRY_MAX_S = 0.5, 30.0
@@ -139,18 +143,20 @@ class FloorKeeper:
         self.save(floor, f"refined from {self._windows} windows that passed")
 
 
-@dataclass
+@dataclass(eq=False)
 class _Spooled:
-    """Windows closed by one detector call, with the slews between them, waiting to be stored.
+    """A batch of windows (one detector call) waiting for the database, in order: on disk
+    (``entry`` None: read back from ``path`` when stored) or, when the spool could not take
+    it, held in memory (``entry``)."""
 
-    slews: (first row, second row, recal.slews.ReducedSlew); row -1 is the window stored just
-    before this batch (``after_gap``: that window was dropped from the spool, so those slews
-    are skipped).
-    """
+    key: str
+    windows: int
+    path: Path | None = None
+    entry: SpoolEntry | None = None
+    replayed: bool = False  # spooled by an earlier run: it may already be stored
 
-    columns: dict[str, np.ndarray]
-    slews: list[tuple[int, int, Any]]
-    after_gap: bool = False
+    def load(self) -> SpoolEntry:
+        return self.entry if self.entry is not None else read_entry(self.path)
 
 
 class Ingest:
@@ -159,9 +165,14 @@ class Ingest:
     The motion between consecutive windows is kept too (:class:`recal.slews.SlewTracker`,
     bounded memory) and stored with them, so the gyro can be calibrated from the slews.
 
-    A window that cannot be stored (database outage) waits in a bounded spool, in order, and is
-    retried with exponential back-off from :meth:`poll`; nothing is dropped unless the spool
-    overflows (:data:`SPOOL_MAX` windows, counted in ``windows_dropped``).
+    With a ``spool`` (:class:`service.spool.Spool`) each detector call's windows are written to
+    it durably *before* they count as detected (``detected``) and go to the database; a batch's
+    file is deleted once the database committed it. Batches a previous run left in the spool
+    are queued first, in order (:meth:`replay`). During a database outage batches wait on disk,
+    retried with exponential back-off from :meth:`poll`. When the spool folder refuses a write
+    (disk full, permissions) the error is kept in ``spool_error`` and the batch goes straight to
+    the database; only when both refuse is it held in memory, bounded (:data:`SPOOL_MAX`
+    windows, overflow counted in ``windows_dropped``).
     """
 
     def __init__(
@@ -173,6 +184,7 @@ class Ingest:
         events: Events | None = None,
         keeper: FloorKeeper | None = None,
         learn_s: float = 120.0,
+        spool: Spool | None = None,
     ) -> None:
         self._store = store
         self._session = session_id
@@ -198,9 +210,15 @@ class Ingest:
         self._first_pending = 0.0
         self._lock = threading.Lock()
         self._spool: deque[_Spooled] = deque()
+        self._disk = spool
+        self.spool_error: str | None = None  # why the spool folder refused the last batch
+        self.windows_in_memory = 0  # windows neither on disk nor stored (both refused them)
+        self.detected = 0  # windows made durable (spool or database) or held in memory
+        self.replayed = 0  # windows of earlier runs stored from the spool by this one
         self._tracker: SlewTracker | None = None
         self._fed = 0  # frames given to the detector
-        self._last_id: int | None = None  # the last window stored (first end of the next slew)
+        self._last_key: str | None = None  # this session's last batch (row -1 of the next)
+        self._stored_last: tuple[str, int] | None = None  # the last batch stored: key, last id
         self.slews = 0
         self.slews_dropped: dict[str, int] = {}
         self._retry_at = 0.0
@@ -305,8 +323,39 @@ class Ingest:
 
     @property
     def spooled(self) -> int:
-        """Windows waiting for the database."""
-        return len(self._spool)
+        """Windows waiting for the database (on disk or in memory)."""
+        return sum(item.windows for item in self._spool)
+
+    def spool_health(self) -> dict[str, Any]:
+        """The spool as ``/health`` shows it."""
+        on_disk = [item for item in self._spool if item.path is not None]
+        return {
+            "dir": None if self._disk is None else str(self._disk.directory),
+            "batches_on_disk": len(on_disk),
+            "windows_on_disk": sum(item.windows for item in on_disk),
+            "windows_in_memory": self.windows_in_memory,
+            "windows_replayed": self.replayed,
+            "error": self.spool_error,
+        }
+
+    def replay(self) -> list[int]:
+        """Queue the batches earlier runs left in the spool (oldest first, ahead of any new
+        window) and store what the database takes now; returns the ids stored."""
+        if self._disk is None:
+            return []
+        with self._lock:
+            entries = self._disk.load()
+            for bad in self._disk.unreadable:
+                self._events.emit("spool", f"unreadable spool file kept as .bad: {bad}",
+                                  level=logging.ERROR)  # fmt: skip
+            if entries:
+                n = sum(e.size for e in entries)
+                self._events.emit("spool", f"replaying {n} window(s) in {len(entries)} batch(es) "
+                                  f"from {self._disk.directory}", {"windows": n})  # fmt: skip
+            old = [_Spooled(e.key, e.size, e.path, replayed=True) for e in entries]
+            self._spool.extendleft(reversed(old))
+            self._retry_at = 0.0
+            return self._drain() if self._spool else []
 
     def _run(self, flush: bool) -> list[int]:
         windows = []
@@ -337,20 +386,47 @@ class Ingest:
         if windows and self._keeper is not None:
             self._keeper.refine(windows)
         if windows:
-            if len(self._spool) >= SPOOL_MAX:
-                self._spool.popleft()
-                self.windows_dropped += 1
-                if self._spool:
-                    self._spool[0].after_gap = True
             slews = []
             if self._tracker is not None:
                 for k, w in enumerate(windows):
                     r = self._tracker.window(w)
                     if r is not None:
                         slews.append((k - 1, k, r))
-            self._spool.append(_Spooled(windows_to_columns(windows), slews))
+            period = None if self._tracker is None else self._tracker.period_s
+            entry = SpoolEntry(self._session, windows_to_columns(windows), slews,
+                               self._last_key, period)  # fmt: skip
+            self._last_key = entry.key
+            self._hold(entry)
             self._retry_at = 0.0  # new data: try the database now
         return self._drain() if self._spool and time.monotonic() >= self._retry_at else []
+
+    def _hold(self, entry: SpoolEntry) -> None:
+        """Queue a new batch: on disk first (durable before it counts as detected); when the
+        spool refuses it, in memory, where the drain that follows stores it if it can."""
+        self.detected += entry.size
+        if self._disk is not None:
+            try:
+                self._disk.append(entry)
+            except SpoolWriteError as exc:
+                if self.spool_error != str(exc):
+                    self._events.emit("spool", f"{exc}: storing windows straight to the "
+                                      "database, in memory while it is down",
+                                      {"dir": str(self._disk.directory)},
+                                      level=logging.ERROR)  # fmt: skip
+                self.spool_error = str(exc)
+            else:
+                if self.spool_error is not None:
+                    self._events.emit("spool", f"spool {self._disk.directory} writable again")
+                self.spool_error = None
+                self._spool.append(_Spooled(entry.key, entry.size, entry.path))
+                return
+        self._spool.append(_Spooled(entry.key, entry.size, entry=entry))
+        self.windows_in_memory += entry.size
+        while self.windows_in_memory > SPOOL_MAX:  # drop the oldest batch held in memory
+            old = next(item for item in self._spool if item.entry is not None)
+            self._spool.remove(old)
+            self.windows_in_memory -= old.windows
+            self.windows_dropped += old.windows
 
     def _track(self, b: Any) -> None:
         """Give the frames the detector just took to the slew tracker (created once the frame
@@ -364,32 +440,45 @@ class Ingest:
         self._fed += len(b)
 
     def _drain(self) -> list[int]:
-        """Store spooled windows in order until the spool is empty or the database fails."""
+        """Store queued batches in order until none is left or the database fails."""
         stored: list[int] = []
         while self._spool:
-            entry = self._spool[0]
-            slews = [x for x in entry.slews if x[0] >= 0 or not entry.after_gap]
-            period = None if self._tracker is None else self._tracker.period_s
+            item = self._spool[0]
             try:
-                ids = self._store.add_positions(
-                    self._session, entry.columns, slews, period, self._last_id
-                )
+                entry = item.load()
+            except (OSError, ValueError, KeyError) as exc:  # the file went bad under us
+                self._events.emit("spool", f"cannot read spooled batch {item.path}: {exc}",
+                                  level=logging.ERROR)  # fmt: skip
+                self._spool.popleft()
+                self.windows_dropped += item.windows
+                continue
+            try:
+                ids = self._store_entry(entry, item.replayed)
+            except (UnknownSessionError, RecalInputError) as exc:  # retrying cannot help
+                self._set_aside(item, str(exc))
+                continue
             except StoreError as exc:
                 if self.store_error is None:
-                    self._events.emit("database", f"cannot store windows, spooling them: {exc}",
+                    where = "spooling them" if self._disk is None else "they wait in the spool"
+                    self._events.emit("database", f"cannot store windows, {where}: {exc}",
                                       level=logging.WARNING)  # fmt: skip
                 self.store_error = str(exc)
                 self._retry_at = time.monotonic() + self._backoff_s
                 self._backoff_s = min(2 * self._backoff_s, SPOOL_RETRY_MAX_S)
                 break
             self._spool.popleft()
+            if item.entry is not None:
+                self.windows_in_memory -= item.windows
+            if self._disk is not None and entry.path is not None:
+                try:
+                    self._disk.remove(entry)
+                except OSError as exc:  # committed with its key: a replay of it adds nothing
+                    log.warning("event=spool cannot delete %s: %s", entry.path, exc)
+            if ids is None:  # an earlier run stored it and was killed before the delete
+                continue
             stored += ids
-            self._last_id = ids[-1] if ids else self._last_id
-            for *_, r in slews:
-                if r.dropped is None:
-                    self.slews += 1
-                else:
-                    self.slews_dropped[r.dropped] = self.slews_dropped.get(r.dropped, 0) + 1
+            if item.replayed:
+                self.replayed += len(ids)
         if stored:
             if self.store_error is not None:
                 self._events.emit("database", "database back: spooled windows stored",
@@ -401,3 +490,41 @@ class Ingest:
             if self._on_positions:
                 self._on_positions(stored)
         return stored
+
+    def _set_aside(self, item: _Spooled, why: str) -> None:
+        """A batch the database can never take (e.g. a spool from another database): out of
+        the queue, its file kept as ``*.bad`` for a person to look at."""
+        self._spool.popleft()
+        self.windows_dropped += item.windows
+        if item.entry is not None:
+            self.windows_in_memory -= item.windows
+        if item.path is not None:
+            with contextlib.suppress(OSError):
+                item.path.rename(item.path.with_suffix(".bad"))
+        self._events.emit("spool", f"batch {item.key} ({item.windows} window(s)) cannot be "
+                          f"stored, set aside: {why}", level=logging.ERROR)  # fmt: skip
+
+    def _store_entry(self, entry: SpoolEntry, replayed: bool) -> list[int] | None:
+        """Store one batch with its slews (StoreError if the database refuses); None when a
+        replayed batch is stored already."""
+        if replayed and self._store.keyed_positions(entry.key):
+            return None
+        previous = None  # the last window of the batch before, if it was stored
+        if entry.previous_key is not None:
+            if self._stored_last is not None and self._stored_last[0] == entry.previous_key:
+                previous = self._stored_last[1]
+            elif replayed:
+                before = self._store.keyed_positions(entry.previous_key)
+                previous = before[-1] if before else None
+        ids = self._store.add_positions(entry.session_id, entry.columns, entry.slews,
+                                        entry.period_s, previous, spool_key=entry.key)  # fmt: skip
+        if ids:
+            self._stored_last = (entry.key, ids[-1])
+        for a, _, r in entry.slews:
+            if a < 0 and previous is None:
+                continue  # its first window was never stored: not stored
+            if r.dropped is None:
+                self.slews += 1
+            else:
+                self.slews_dropped[r.dropped] = self.slews_dropped.get(r.dropped, 0) + 1
+        return ids

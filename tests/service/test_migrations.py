@@ -173,10 +173,10 @@ def check_upgrade_keeps_everything(url: str) -> None:
     old.close()
     store = Store(url)
     after = dump(url)
-    assert after.pop("schema_version")[:-1] == before.pop("schema_version")
+    assert after.pop("schema_version")[:-2] == before.pop("schema_version")
     assert after == before
     assert snapshot(store) == served
-    assert store.schema_version() == SCHEMA_VERSION == 2  # the release refuses it from now on
+    assert store.schema_version() == SCHEMA_VERSION == 3  # the release refuses it from now on
     assert store.schema_revision() == migrations.head()
 
     # the new table works, and versions go on from the last one
@@ -225,7 +225,7 @@ def test_upgrade_is_idempotent(store_url: str, store: Store, document: dict[str,
     again.create_schema()
     command.upgrade(migrations.alembic_config(url=store_url), "head")
     assert dump(store_url) == before  # one schema_version row per version, data untouched
-    assert [r[0] for r in before["schema_version"]] == [1, 2]
+    assert [r[0] for r in before["schema_version"]] == [1, 2, 3]
     assert again.recorded_schema() == (SCHEMA_VERSION, migrations.head())
     again.close()
 
@@ -247,7 +247,7 @@ def test_concurrent_starts_migrate_once(store_url: str) -> None:
     for t in threads:
         t.join()
     assert errors == []
-    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2]
+    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3]
 
 
 def test_downgrade_and_upgrade_again(store_url: str, store: Store) -> None:
