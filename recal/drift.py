@@ -64,6 +64,7 @@ import numpy as np
 
 from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
+from recal.model import Model, ParameterLayout
 from recal.positions import Positions
 from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 
@@ -171,19 +172,12 @@ def drift_inputs(
     :class:`~recal.calibrate.CalibrationResult`'s, when it covers the same triads), or a
     coefficients file's ``"covariance"`` block (names + matrix); without it,
     ``coefficients.uncertainty`` as a diagonal (unknown sigma: 0, with a note)."""
-    from recal.calibrate import build_models
-    from recal.model import ParameterLayout
     from recal.problem import Problem
 
     if not -90.0 <= latitude_deg <= 90.0:
         raise RecalInputError(f"--latitude {latitude_deg} is outside [-90, 90] deg")
     notes: list[str] = []
-    sensors = _tested_sensors(positions, coefficients, notes)
-    seed = {f"{s}.{k}" for s in sensors for k in ("scale", "bias", "misalignment", "quadratic")}
-    effects = [n for n in coefficients.values if n not in seed and n.split(".")[0] in sensors]
-    models = build_models(sensors, effects, [], coefficients.t0_c)
-    layout = ParameterLayout(models)
-    theta = coefficients.to_vector(layout)
+    sensors, models, layout, theta = accepted_model(positions, coefficients, notes)
     problem = Problem.build(positions, models, latitude_deg, height_m, theta, use_dot=False)
     M, D = len(positions), layout.size
     # invariants at theta and at +-FD_STEP typical changes of each coefficient, in one batch
@@ -206,13 +200,29 @@ def drift_inputs(
     signature = np.where(active[..., None], signature, 0.0)
     both = active[:, :, None] & active[:, None, :]
     noise = np.where(both, noise, np.eye(3))
-    cov = _coefficient_cov(coefficients, layout, covariance, notes)
+    cov = coefficient_covariance(coefficients, layout, covariance, notes)
     time_s = None
     if "start_s" in positions.columns and "end_s" in positions.columns:
         time_s = 0.5 * (positions.columns["start_s"] + positions.columns["end_s"])
     return DriftInputs(
         residual, active, noise, signature, cov, theta, tuple(layout.names), tuple(notes), time_s
     )
+
+
+def accepted_model(
+    positions: Positions, coefficients: CoefficientSet, notes: list[str]
+) -> tuple[tuple[str, ...], tuple[Model, ...], ParameterLayout, np.ndarray]:
+    """The triads ``positions`` can test against ``coefficients`` (gyro first), their models
+    (the seed terms plus the effects the coefficients carry), the flat layout and the accepted
+    coefficients as a vector in it. Raises RecalInputError when nothing can be tested."""
+    from recal.calibrate import build_models
+
+    sensors = _tested_sensors(positions, coefficients, notes)
+    seed = {f"{s}.{k}" for s in sensors for k in ("scale", "bias", "misalignment", "quadratic")}
+    effects = [n for n in coefficients.values if n not in seed and n.split(".")[0] in sensors]
+    models = build_models(sensors, effects, [], coefficients.t0_c)
+    layout = ParameterLayout(models)
+    return sensors, models, layout, coefficients.to_vector(layout)
 
 
 def _tested_sensors(
@@ -299,7 +309,7 @@ def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) ->
     return np.einsum("mia,mab,mjb->mij", J, cov_in, J)
 
 
-def _coefficient_cov(
+def coefficient_covariance(
     coefficients: CoefficientSet,
     layout,
     covariance: np.ndarray | Mapping[str, Any] | None,

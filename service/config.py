@@ -192,13 +192,41 @@ class DetectorSettings(Section):
     )
 
 
+Trigger = Literal["drift", "information", "count"]
+
+
 class SchedulerSettings(Section):
     min_positions: int = Field(
-        12, ge=1, description="stored windows before the first automatic recalibration"
+        12, ge=1, description="stored windows before any automatic recalibration"
     )
     min_new_positions: int = Field(
-        4, ge=1, description="new windows since the last job before the next automatic one"
+        4,
+        ge=1,
+        description="new windows since the last job before the next automatic one by count, "
+        "and before another drift or information job when the last one was not accepted",
     )
+    trigger: list[Trigger] = Field(
+        ["drift", "information"],
+        description="what starts an automatic recalibration once one is accepted: 'drift' (the "
+        "new windows show the coefficients changed, recal.drift), 'information' (they would "
+        "sharpen them by min_information_gain, recal.information), 'count' (min_new_positions "
+        "new windows); a list or one name (the first calibration always waits for "
+        "min_positions windows)",
+    )
+    min_information_gain: float = Field(
+        0.25,
+        gt=0,
+        lt=1,
+        description="'information' trigger: run when the new windows would cut some "
+        "coefficient's 1-sigma by this fraction",
+    )
+    drift_false_alarm_days: float = Field(
+        30.0, gt=0, description="'drift' trigger: one false alarm per this many days..."
+    )
+    windows_per_day: float = Field(
+        24.0, gt=0, description="... at this expected rate of static windows"
+    )
+
     sensor: Literal["gyro", "accel", "both"] = Field("both", description="triads to calibrate")
     method: Literal["lm", "nafsa", "safsa", "oafsa"] = Field(
         "nafsa",
@@ -222,6 +250,17 @@ class SchedulerSettings(Section):
         description="at shutdown a running job may finish for this long, then it is abandoned "
         "(s); keep it below the unit's TimeoutStopSec",
     )
+
+    @field_validator("trigger", mode="before")
+    @classmethod
+    def _one_or_many(cls, value: Any) -> Any:
+        if isinstance(value, str):  # trigger = "drift", or "drift+information"
+            value = [v.strip() for v in value.replace(",", "+").split("+") if v.strip()]
+        if isinstance(value, list | tuple):
+            if not value:
+                raise ValueError("name at least one of drift, information, count")
+            return list(dict.fromkeys(value))
+        return value
 
 
 class GateSettings(Section):

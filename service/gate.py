@@ -48,6 +48,7 @@ def gate(
     config: GateConfig | None = None,
     impact: NavigationImpact | None = None,
     effects_check: Mapping[str, Any] | None = None,
+    change_expected: str | None = None,
 ) -> GateDecision:
     """Accept or reject ``result`` against the current accepted record ``previous``.
 
@@ -55,6 +56,9 @@ def gate(
     ``refuse_worse_navigation`` is set and summarised in the notes otherwise.
     ``effects_check``: :func:`recal.diagnose.effects_check` of a fit with effects; an untrusted
     one is refused (a note with ``allow_unconfirmed_effects``).
+    ``change_expected``: why a jump beyond ``max_change_sigma`` is expected (the drift test
+    declared a change at its configured false-alarm rate, and the fit uses only the windows
+    since it); the jump is then a note, as with ``allow_jump``, and every other limit applies.
     Rejected: ``reasons`` says every limit broken. Accepted: ``reasons`` holds notes.
     """
     cfg = config or GateConfig()
@@ -83,8 +87,9 @@ def gate(
     if len(moved) > _MAX_LISTED:
         lines.append(f"{len(moved) - _MAX_LISTED} more coefficients moved beyond {limit:g} sigma")
     notes = []
-    if cfg.allow_jump:
-        notes = [f"{line}; allowed (allow_jump)" for line in lines]
+    if cfg.allow_jump or change_expected:
+        why = change_expected or "allow_jump"
+        notes = [f"{line}; allowed ({why})" for line in lines]
     else:
         problems += lines
     if jumps and not moved:

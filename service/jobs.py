@@ -245,9 +245,9 @@ class JobRunner:
     def _start(self, job: int, fn: Callable[..., Any], args: tuple, on_end: Callable) -> None:
         now = time.monotonic()
         with self._lock:
-            self._queued -= 1
             cancelled = self._cancel
         if cancelled:
+            self._unqueue()
             on_end(JobEnd(job, "cancelled", message=cancelled))
             return
         try:
@@ -258,10 +258,16 @@ class JobRunner:
             process.start()
             send.close()
         except Exception as exc:  # noqa: BLE001 - e.g. out of memory or process limits
+            self._unqueue()
             on_end(JobEnd(job, "died", message=f"cannot start a worker: {exc}"))
             return
-        with self._lock:
+        with self._lock:  # queued until running: busy never reads False while a worker starts
             self._running = _Running(job, process, recv, now, now + self.timeout_s, on_end)
+            self._queued -= 1
+
+    def _unqueue(self) -> None:
+        with self._lock:
+            self._queued -= 1
 
     def _check(self, r: _Running) -> JobEnd | None:
         elapsed = time.monotonic() - r.started

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from recal.calibrate import CalibrationOptions, calibrate
+from recal.drift import covariance_to_json
 from recal.errors import RecalInputError
 from recal.positions import Positions
 from service.jobs import report_progress
@@ -49,9 +50,11 @@ def calibration_job(
     previous: Any,
     gate_settings: dict[str, Any],
     site: dict[str, Any] | None = None,
+    change_expected: str | None = None,
 ) -> JobOutcome:
     """Calibrate, predict the navigation impact, then gate against the previous accepted
-    version. Runs in a worker process. ``site``: ``[site]`` settings (IMU attitude, horizon)."""
+    version. Runs in a worker process. ``site``: ``[site]`` settings (IMU attitude, horizon);
+    ``change_expected``: why the coefficients may jump (a declared drift, service.gate)."""
     from service.gate import GateConfig, gate
 
     try:
@@ -61,6 +64,8 @@ def calibration_job(
     except RecalInputError as exc:
         return JobOutcome(None, False, [str(exc)], error=str(exc))
     document = result.to_json_dict()
+    # the full covariance: the drift and information triggers whiten by it (recal.drift)
+    document["covariance"] = covariance_to_json(result.layout.names, result.covariance)
     try:
         impact = navigation_impact_of(result, previous, site or {})
     except (RecalInputError, ValueError, np.linalg.LinAlgError) as exc:
@@ -73,7 +78,7 @@ def calibration_job(
 
         check = effects_check(result, options)
         document["effects_check"] = check
-    decision = gate(result, previous, GateConfig(**gate_settings), impact, check)
+    decision = gate(result, previous, GateConfig(**gate_settings), impact, check, change_expected)
     return JobOutcome(document, decision.accepted, list(decision.reasons))
 
 

@@ -11,6 +11,7 @@ import errno
 import os
 import socket
 from pathlib import Path
+from typing import Any
 
 from recal.errors import RecalInputError
 from service.config import Settings
@@ -26,8 +27,13 @@ def check_startup(settings: Settings) -> None:
 def check_prior(path: str | None) -> None:
     """The prior file exists and reads as coefficients: a newer or foreign ``schema`` stops the
     daemon at start (exit 2 naming it), not at its first recalibration."""
-    if path is None:
-        return
+    if path is not None:
+        read_prior(path)
+
+
+def read_prior(path: str) -> Any:
+    """``prior_path`` as a :class:`recal.coefficients.CoefficientSet` (RecalInputError naming
+    the setting when it cannot be read)."""
     if not Path(path).is_file():
         raise RecalInputError(f"prior_path: {path} is not a file")
     from recal.coefficients import read_coefficients
@@ -37,7 +43,7 @@ def check_prior(path: str | None) -> None:
     except (OSError, UnicodeDecodeError) as exc:
         raise RecalInputError(f"prior_path: cannot read {path} as UTF-8 text: {exc}") from None
     try:
-        read_coefficients(text, source=path)
+        return read_coefficients(text, source=path)
     except RecalInputError as exc:
         raise RecalInputError(f"prior_path: {exc}") from None
 
