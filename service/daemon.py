@@ -160,6 +160,7 @@ class Service:
             "uptime_s": time.monotonic() - self.started,
             "frames": self.ingest.frames,
             "windows": self.ingest.windows,
+            "windows_detected": self.ingest.detected,  # durable: in the spool or the database
             "windows_spooled": self.ingest.spooled,
             "windows_dropped": self.ingest.windows_dropped,
             "spool": self.ingest.spool_health(),

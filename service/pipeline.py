@@ -213,7 +213,7 @@ class Ingest:
         self._disk = spool
         self.spool_error: str | None = None  # why the spool folder refused the last batch
         self.windows_in_memory = 0  # windows neither on disk nor stored (both refused them)
-        self.detected = 0  # windows made durable (spool or database) or held in memory
+        self.detected = 0  # windows made durable (spool or database): they survive a kill
         self.replayed = 0  # windows of earlier runs stored from the spool by this one
         self._tracker: SlewTracker | None = None
         self._fed = 0  # frames given to the detector
@@ -403,7 +403,6 @@ class Ingest:
     def _hold(self, entry: SpoolEntry) -> None:
         """Queue a new batch: on disk first (durable before it counts as detected); when the
         spool refuses it, in memory, where the drain that follows stores it if it can."""
-        self.detected += entry.size
         if self._disk is not None:
             try:
                 self._disk.append(entry)
@@ -419,6 +418,7 @@ class Ingest:
                     self._events.emit("spool", f"spool {self._disk.directory} writable again")
                 self.spool_error = None
                 self._spool.append(_Spooled(entry.key, entry.size, entry.path))
+                self.detected += entry.size
                 return
         self._spool.append(_Spooled(entry.key, entry.size, entry=entry))
         self.windows_in_memory += entry.size
@@ -467,8 +467,9 @@ class Ingest:
                 self._backoff_s = min(2 * self._backoff_s, SPOOL_RETRY_MAX_S)
                 break
             self._spool.popleft()
-            if item.entry is not None:
+            if item.entry is not None:  # durable only now
                 self.windows_in_memory -= item.windows
+                self.detected += item.windows
             if self._disk is not None and entry.path is not None:
                 try:
                     self._disk.remove(entry)
