@@ -46,8 +46,8 @@ def plotly_js() -> Path:
 
 
 def mount_dashboard(app: FastAPI, store: Store) -> None:
-    """Add ``/``, ``/dashboard/static/*``, ``/dashboard/plotly.min.js`` and
-    ``/dashboard/coverage`` to ``app`` (none of them in the OpenAPI schema)."""
+    """Add ``/``, ``/dashboard/static/*``, ``/dashboard/plotly.min.js``, ``/dashboard/coverage``
+    and ``/dashboard/drift`` to ``app`` (none of them in the OpenAPI schema)."""
     app.mount("/dashboard/static", StaticFiles(directory=STATIC), name="dashboard-static")
     page = (STATIC / "index.html").read_text(encoding="utf-8")
     advice_cache = _AdviceCache()
@@ -60,6 +60,11 @@ def mount_dashboard(app: FastAPI, store: Store) -> None:
     def plotly_asset() -> FileResponse:
         return FileResponse(plotly_js(), media_type="text/javascript",
                             headers={"Cache-Control": "max-age=86400"})  # fmt: skip
+
+    @app.get("/dashboard/drift", include_in_schema=False)
+    def drift() -> dict[str, Any]:
+        """The drift statistic over time (each look at new windows) and the last job's reason."""
+        return drift_series(store)
 
     @app.get("/dashboard/coverage", include_in_schema=False)
     def coverage() -> dict[str, Any]:
@@ -76,6 +81,31 @@ def mount_dashboard(app: FastAPI, store: Store) -> None:
             out["residuals"] = fit_residuals(current)
             out["advice"] = advice_cache.get(current, table, ids)
         return out
+
+
+#: Drift looks shown on the dashboard (one per window at most; the newest).
+DRIFT_POINTS = 500
+
+
+def drift_series(store: Store) -> dict[str, Any]:
+    """The drift statistic at each look (the scheduler's ``drift`` events, oldest first) and
+    why the newest version ran (its ``trigger`` and ``trigger_detail``)."""
+    from service.triggers import describe_reason
+
+    events = [e for e in store.events(limit=4 * DRIFT_POINTS) if e["kind"] == "drift"]
+    points = [
+        {"at": e["created_at"], "version": d.get("version"), "window": d.get("last_id"),
+         "statistic": d.get("statistic"), "threshold": d.get("threshold"),
+         "alarm": d.get("alarm_window") is not None, "suspect": d.get("suspect")}
+        for e in reversed(events[:DRIFT_POINTS]) if isinstance(d := e.get("data") or {}, dict)
+    ]  # fmt: skip
+    newest = store.history(limit=1)
+    reason = None
+    if newest:
+        why = newest[0].document.get("trigger_detail") or {"trigger": newest[0].trigger}
+        reason = {"version": newest[0].version, "accepted": newest[0].accepted,
+                  "trigger": newest[0].trigger, "text": describe_reason(why)}  # fmt: skip
+    return {"points": points, "last_reason": reason}
 
 
 def fit_residuals(record: CalibrationRecord) -> list[dict[str, Any]]:

@@ -59,3 +59,32 @@ def test_advice_names_the_orientation_that_pins_a_weak_coefficient():
     assert advice["unresolved"] == []
     # the rotations of the frames: no orientation shows them, and the advice says why
     assert advice["unseeable"] and all("rotation" in h["reason"] for h in advice["unseeable"])
+
+
+def test_drift_series_is_the_drift_events_and_the_last_reason(sqlite_store, tmp_path):
+    from datetime import UTC, datetime
+
+    from service.db import CalibrationRecord
+
+    client = TestClient(create_app(sqlite_store, Publisher(tmp_path / "c.json")))
+    assert client.get("/dashboard/drift").json() == {"points": [], "last_reason": None}
+    sqlite_store.add_event("drift", "steady", {"version": 1, "statistic": 2.0, "threshold": 17.0,
+                                               "last_id": 30, "alarm_window": None})  # fmt: skip
+    sqlite_store.add_event("job", "started", {"state": "started"})
+    sqlite_store.add_event("drift", "DRIFT", {"version": 1, "statistic": 40.0, "threshold": 17.5,
+                                              "last_id": 31, "alarm_window": 1,
+                                              "suspect": "accel x bias, about +5 micro-g"})  # fmt: skip
+    why = {"trigger": "drift", "statistic": 40.0, "threshold": 17.5,
+           "suspect": "accel x bias, about +5 micro-g"}  # fmt: skip
+    sqlite_store.add_calibration(CalibrationRecord(
+        version=None, created_at=datetime.now(UTC), trigger="drift", method="lm", accepted=True,
+        reasons=[], document={"coefficients": {}, "trigger_detail": why}, positions_used=[31],
+        prior_version=None))  # fmt: skip
+    out = client.get("/dashboard/drift").json()
+    assert [p["statistic"] for p in out["points"]] == [2.0, 40.0]  # oldest first, drift only
+    assert [p["alarm"] for p in out["points"]] == [False, True]
+    assert out["points"][1]["suspect"] == "accel x bias, about +5 micro-g"
+    assert out["last_reason"]["trigger"] == "drift"
+    assert out["last_reason"]["text"] == (
+        "drift: statistic 40.0 > 17.5, looks like accel x bias, about +5 micro-g"
+    )

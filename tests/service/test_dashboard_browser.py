@@ -65,7 +65,12 @@ def page(browser: Any) -> Iterator[Any]:
 def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path):
     from playwright.sync_api import expect
 
-    base, _ = daemon
+    base, service = daemon
+    # two looks of the drift test at new windows, the second an alarm (as the scheduler emits)
+    for k, stat in enumerate((3.2, 41.0)):
+        service.events.emit("drift", f"look {k}", {
+            "version": 1, "statistic": stat, "threshold": 17.0, "last_id": 25 + k,
+            "alarm_window": k or None, "suspect": "gyro x scale, about +600 ppm"})  # fmt: skip
     problems: list[str] = []  # script errors and CSP violations (reported as console errors)
     page.on("pageerror", lambda exc: problems.append(str(exc)))
     page.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
@@ -86,6 +91,10 @@ def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path)
     window_points = page.locator("#coverage-chart .scatterlayer .trace").first.locator(".point")
     assert window_points.count() == 24
     page.wait_for_selector("#residual-chart .barlayer .point")
+    # the drift statistic over time against its threshold, and why the last version ran
+    page.wait_for_selector("#drift-chart .scatterlayer .point")
+    assert page.locator("#drift-chart .scatterlayer .trace").first.locator(".point").count() == 2
+    expect(page.locator("#drift-reason")).to_have_text("version 1 ran because of manual")
     assert page.locator("#windows tbody tr").count() == 24
     # health and log are polled
     # (the replayed capture has ended, so the reader reports a silent device: degraded)

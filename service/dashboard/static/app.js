@@ -291,6 +291,28 @@ function renderResiduals() {
     shapes: [{ type: "rect", xref: "paper", x0: 0, x1: 1, y0: -nf, y1: nf, fillcolor: "rgba(62,207,142,0.10)", line: { width: 0 } }] }), PLOT_CONFIG);
 }
 
+function renderDrift() {
+  const d = state.drift || { points: [], last_reason: null };
+  const r = d.last_reason;
+  $("drift-reason").textContent = r ? `version ${r.version} ran because of ${r.text}` : "no job yet";
+  const chart = $("drift-chart");
+  const pts = d.points.filter((p) => isNum(p.statistic));
+  if (!pts.length) {
+    Plotly.purge(chart);
+    chart.replaceChildren(el("p", { className: "meta" }, "No drift test yet: it runs on the windows after the first accepted version."));
+    return;
+  }
+  const x = pts.map((p) => p.at);
+  const text = pts.map((p) => `version ${p.version}, window ${p.window}${p.alarm && p.suspect ? `: looks like ${p.suspect}` : ""}`);
+  Plotly.react(chart, [
+    { x, y: pts.map((p) => p.statistic), mode: "lines+markers", name: "statistic", text,
+      marker: { color: pts.map((p) => (p.alarm ? COLORS.bad : COLORS.accent)) },
+      hovertemplate: "%{y:.1f}: %{text}<extra></extra>" },
+    { x, y: pts.map((p) => p.threshold), mode: "lines", name: "threshold", line: { color: COLORS.bad, dash: "dash", width: 1.5, shape: "hv" },
+      hovertemplate: "threshold %{y:.1f}<extra></extra>" },
+  ], layout({ xaxis: { title: { text: "time (UTC)" }, type: "date" }, yaxis: { title: { text: "GLR statistic (chi-square)" }, type: "log" } }), PLOT_CONFIG);
+}
+
 function axisWord(g) {
   if (!g) return "-";
   const i = [0, 1, 2].reduce((a, b) => (Math.abs(g[b]) > Math.abs(g[a]) ? b : a), 0);
@@ -351,7 +373,8 @@ async function loadVersions() {
   const prior = state.current?.prior_version;
   state.previous = prior ? state.history.find((r) => r.version === prior) || await getJSON(`coefficients/${prior}`) : null;
   state.coverage = await getJSON("dashboard/coverage");
-  renderCurrent(); renderHistory(); renderCoverage(); renderResiduals(); renderWindows();
+  state.drift = await getJSON("dashboard/drift");
+  renderCurrent(); renderHistory(); renderCoverage(); renderResiduals(); renderWindows(); renderDrift();
 }
 
 async function poll() {
