@@ -1,64 +1,132 @@
-"""Fault injection: kill the daemon or its worker at random moments, restart, check everything.
+"""Fault injection: kill the daemon in every phase, refuse its database, fill its disk; restart
+and check that no detected window was lost or doubled and that versions go on.
 
-Each run starts ``recal serve`` (its own process session) on a replayed KVH capture, waits a
-random time, and does one of:
+Cases (each its own folder, database, spool and clean reference run; ``--runs`` runs each):
 
-* ``kill -9`` of the daemon (a power cut, the OOM killer): its worker must die with it;
-* ``kill -9`` of the job's worker (only when a job runs), then SIGTERM to the daemon;
-* SIGTERM to the whole process group (``systemctl stop`` with KillMode=control-group).
+* ``learning``     kill -9 while the detector learns its noise floor (frames held);
+* ``detecting``    kill -9 while windows are being detected and stored, no job running;
+* ``storing``      kill -9 the moment a window batch is in the spool (written, not yet deleted);
+* ``job``          kill -9 while a recalibration job runs (its worker must die with it);
+* ``publication``  kill -9 the moment a new version is committed (before or while it is
+                   published): the restart must publish it;
+* ``outage``       the database (PostgreSQL at 127.0.0.1:5432, closed to connections with
+                   ``ALLOW_CONNECTIONS false``) refuses, windows wait in the spool, kill -9;
+                   the restart (database back) must store every one of them;
+* ``disk-full``    the spool folder is a full tmpfs (ENOSPC): /health must name it and the
+                   cause, windows go straight to the database; kill -9.
 
-After each run, and again after the next start (restart), it checks:
+Each run starts ``recal serve`` (its own process session) on a replayed capture. Just before
+the kill it reads ``/health`` (``windows_detected``: windows made durable, in the spool or the
+database). After the kill, and again after the next start (the restart), it checks:
 
-1. no process of the killed run is left (workers and swarm children included);
-2. ``PRAGMA integrity_check`` is ``ok``;
-3. every stored version is complete (coefficients, status, uncertainty) and versions increase;
-4. the published file equals the current accepted version once the restarted daemon is up;
-5. no window lost or doubled: the windows of every session are a prefix of the windows a clean
-   run finds (same order, same means), except at most the one open at the kill;
-6. a clean SIGTERM exits 0.
+1. no process of the killed run is left (job workers included);
+2. ``PRAGMA integrity_check`` is ``ok`` (SQLite); every version is complete;
+3. the published file equals the current accepted version once the restarted daemon is up;
+4. lost: windows counted as detected before the kill that the restart does not store;
+   doubled: a window stored twice in a session; every session's windows are a prefix of the
+   clean run's (same order, same means);
+5. after the last run, a clean SIGTERM exits 0.
 
-    python benchmarks/fault_injection.py --runs 50        # about 15 s a run
+    python benchmarks/fault_injection.py --runs 50            # every case, about 10 s a run
+    python benchmarks/fault_injection.py --runs 5 --cases outage,disk-full
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
+import secrets
+import shutil
 import signal
 import socket
-import sqlite3
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 RATE = 100.0
+SPEED = 40.0
+CASES = ("learning", "detecting", "storing", "job", "publication", "outage", "disk-full")
+PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
+
+
+# ---- the database, SQLite or PostgreSQL ------------------------------------------------------
+
+
+def _query(url: str, sql: str) -> list[tuple]:
+    from sqlalchemy import create_engine, text
+
+    engine = create_engine(url)
+    try:
+        with engine.connect() as conn:
+            return [tuple(r) for r in conn.execute(text(sql))]
+    finally:
+        engine.dispose()
+
+
+def _windows(url: str) -> dict[int, np.ndarray]:
+    """Per session, rows of (start_s, accel_x, accel_y, accel_z) in id order."""
+    rows = _query(url, "SELECT session_id, start_s, accel_x, accel_y, accel_z FROM positions "
+                  "ORDER BY id")  # fmt: skip
+    out: dict[int, list] = {}
+    for sid, *acc in rows:
+        out.setdefault(sid, []).append(acc)
+    return {k: np.array(v, dtype=float) for k, v in out.items()}
+
+
+def _check_db(url: str) -> list[str]:
+    failures = []
+    if url.startswith("sqlite") and _query(url, "PRAGMA integrity_check")[0][0] != "ok":
+        failures.append("integrity_check failed")
+    for version, doc in _query(url, "SELECT id, document FROM calibrations ORDER BY id"):
+        d = doc if isinstance(doc, dict) else json.loads(doc)
+        if not all(k in d for k in ("coefficients", "status", "uncertainty")):
+            failures.append(f"version {version} incomplete")
+    return failures
+
+
+def _current(url: str) -> int | None:
+    return _query(url, "SELECT max(id) FROM calibrations WHERE accepted")[0][0]
+
+
+def _versions(url: str) -> int:
+    return _query(url, "SELECT count(*) FROM calibrations WHERE accepted")[0][0]
+
+
+def _pg_admin() -> Any:
+    import psycopg
+
+    return psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=3)
+
+
+def _pg_allow(name: str, allow: bool) -> None:
+    """Open or close a PostgreSQL database to connections (closing also ends the open ones)."""
+    from psycopg import sql
+
+    with _pg_admin() as admin:
+        admin.execute(sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS {}").format(
+            sql.Identifier(name), sql.SQL("true" if allow else "false")))  # fmt: skip
+        if not allow:
+            admin.execute("SELECT pg_terminate_backend(pid) FROM pg_stat_activity "
+                          "WHERE datname = %s", (name,))  # fmt: skip
+
+
+# ---- processes ----------------------------------------------------------------------------
 
 
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _config(folder: Path, capture: Path, port: int) -> Path:
-    path = folder / "recal.toml"
-    path.write_text(
-        f'database_url = "sqlite:///{folder / "recal.db"}"\n'
-        f'publish_path = "{folder / "coefficients.json"}"\n'
-        f'[device]\nurl = "replay://{capture}?speed=40&rate={RATE:g}"\nrate_hz = {RATE:g}\n'
-        "[site]\nlatitude_deg = 45.0\n"
-        "[detector]\naccel_threshold = 1e-6\ngyro_threshold = 1e4\n"
-        '[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "nafsa"\n'
-        "mc_runs = 60\nstop_wait_s = 2\n"
-        f"[api]\nport = {port}\n"
-    )
-    return path
 
 
 def _session_processes(sid: int) -> list[int]:
@@ -76,30 +144,155 @@ def _session_processes(sid: int) -> list[int]:
     return out
 
 
-def _workers(sid: int, daemon: int) -> list[int]:
-    return [p for p in _session_processes(sid) if p != daemon and _is_job_worker(p)]
+def _start(config: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "serve", "--config", str(config),
+         "--log-level", "ERROR"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
 
 
-def _is_job_worker(pid: int) -> bool:
+def _health(port: int) -> dict[str, Any] | None:
+    import httpx
+
     try:
-        return os.getpgid(pid) == pid  # a job's worker leads its own process group
-    except ProcessLookupError:
-        return False
+        r = httpx.get(f"http://127.0.0.1:{port}/health", timeout=3)
+        return r.json() if r.status_code == 200 else None
+    except (httpx.HTTPError, ValueError):
+        return None
 
 
-def _windows(db: Path) -> dict[int, np.ndarray]:
-    """Per session, rows of (start_s, accel_x, accel_y, accel_z)."""
-    con = sqlite3.connect(db)
-    try:
-        rows = con.execute(
-            "SELECT session_id, start_s, accel_x, accel_y, accel_z FROM positions ORDER BY id"
-        ).fetchall()
-    finally:
-        con.close()
-    out: dict[int, list] = {}
-    for sid, *acc in rows:
-        out.setdefault(sid, []).append(acc)
-    return {k: np.array(v) for k, v in out.items()}
+def _wait_ready(port: int, proc: subprocess.Popen, timeout: float = 90.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"daemon exited {proc.returncode}: {proc.stderr.read()[-400:]}")
+        h = _health(port)
+        if h is not None:
+            return h
+        time.sleep(0.1)
+    raise RuntimeError("daemon not ready")
+
+
+def _wait(port: int, until: Any, timeout: float) -> dict[str, Any] | None:
+    """Poll /health until ``until(health)``; the last answer (None: timed out)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        h = _health(port)
+        if h is not None and until(h):
+            return h
+        time.sleep(0.05)
+    return None
+
+
+def _kill(proc: subprocess.Popen) -> list[str]:
+    """kill -9 the daemon; its job worker must follow within 5 s."""
+    sid = proc.pid
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(10)
+    deadline = time.monotonic() + 5.0
+    while (left := _session_processes(sid)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    for p in left:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(p, signal.SIGKILL)
+    return [f"{len(left)} process(es) left after kill -9: {left}"] if left else []
+
+
+# ---- one case -------------------------------------------------------------------------------
+
+
+@dataclass
+class Case:
+    name: str
+    folder: Path
+    capture: Path
+    size: int
+    port: int = field(default_factory=_free_port)
+    url: str = ""
+    pg_name: str | None = None
+    reference: np.ndarray | None = None
+    runs: int = 0
+    detected: int = 0  # windows durable before the kills (from /health just before each)
+    lost: int = 0
+    doubled: int = 0
+    hit: int = 0  # runs whose kill landed in the phase it aims at
+    clear_error: int = 0  # disk-full: /health named the spool folder and ENOSPC
+    failures: list[str] = field(default_factory=list)
+    versions: int = 0
+    last_version: int | None = None
+
+    @property
+    def spool(self) -> Path:
+        return self.folder / "spool"
+
+    def config(self, run: int = 0) -> Path:
+        from service.config import SchedulerSettings
+
+        learn = self.name == "learning"
+        # a new device name each run (the replay's seed option does not change the data): no
+        # stored noise floor, so every start learns it again
+        device = f"replay://{self.capture}?speed={SPEED:g}&rate={RATE:g}" + (
+            f"&seed={run}" if learn else "")  # fmt: skip
+        detector = "learn_s = 120\n" if learn else "accel_threshold = 1e-6\ngyro_threshold = 1e4\n"
+        trigger = 'trigger = "count"\n' if "trigger" in SchedulerSettings.model_fields else ""
+        path = self.folder / "recal.toml"
+        path.write_text(
+            f'database_url = "{self.url}"\n'
+            f'publish_path = "{self.folder / "coefficients.json"}"\n'
+            f'spool_dir = "{self.spool}"\n'
+            f'[device]\nurl = "{device}"\nrate_hz = {RATE:g}\n'
+            "[site]\nlatitude_deg = 45.0\n"
+            f"[detector]\n{detector}"
+            # lm: a job takes about a second, so versions are reached within every run
+            f'[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "lm"\n{trigger}'
+            "stop_wait_s = 2\n"
+            f"[api]\nport = {self.port}\n"
+        )
+        return path
+
+    def reference_run(self) -> None:
+        """A clean run over the whole capture: the windows every session must be a prefix of."""
+        proc = _start(self.config())
+        try:
+            _wait_ready(self.port, proc)
+            done = _wait(self.port, lambda h: h["service"]["reader"]["counters"]["bytes_in"]
+                         >= self.size, timeout=120)  # fmt: skip
+            if done is None:
+                self.failures.append("reference run: the replay did not finish")
+            time.sleep(1.5)  # the detector's last call
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            code = proc.wait(60)
+        if code != 0:
+            self.failures.append(f"reference run exited {code}")
+        self.reference = _windows(self.url)[1]
+
+    def check_session(self, run: int, sid: int, detected: int) -> None:
+        """After the restart: the killed session's windows, against what it had detected."""
+        got = _windows(self.url).get(sid, np.empty((0, 4)))
+        self.lost += max(0, detected - len(got))
+        doubled = len(got) - len(np.unique(got[:, 0]))
+        self.doubled += doubled
+        if len(got) < detected:
+            self.failures.append(f"run {run}: {detected - len(got)} detected window(s) lost")
+        if not _is_prefix(got, self.reference):
+            self.failures.append(f"run {run}: session {sid} windows are not a prefix of the clean "
+                                 f"run's (starts {np.round(got[:, 0], 2).tolist()})")  # fmt: skip
+
+    def check_restart(self, run: int, health: dict[str, Any]) -> None:
+        """The restarted daemon is up: the published file follows the database; the spool of
+        the killed run has been replayed."""
+        current = _current(self.url)
+        if current is not None:
+            time.sleep(0.3)
+            published = json.loads((self.folder / "coefficients.json").read_text())["version"]
+            if published != current:
+                self.failures.append(f"run {run}: file has version {published}, database "
+                                     f"{current}")  # fmt: skip
+        left = health["service"]["windows_spooled"]
+        if left and self.name != "disk-full":
+            self.failures.append(f"run {run}: {left} window(s) still spooled after the restart")
 
 
 def _is_prefix(got: np.ndarray, reference: np.ndarray) -> bool:
@@ -112,146 +305,193 @@ def _is_prefix(got: np.ndarray, reference: np.ndarray) -> bool:
     return whole and (n == 0 or abs(got[-1, 0] - reference[n - 1, 0]) < 1e-6)
 
 
-def _check_db(db: Path) -> list[str]:
-    failures = []
-    con = sqlite3.connect(db)
+def _spool_files(folder: Path) -> bool:
     try:
-        if con.execute("PRAGMA integrity_check").fetchone()[0] != "ok":
-            failures.append("integrity_check failed")
-        versions = con.execute("SELECT id, document FROM calibrations ORDER BY id").fetchall()
-    finally:
-        con.close()
-    for version, doc in versions:
-        d = json.loads(doc)
-        if not all(k in d for k in ("coefficients", "status", "uncertainty")):
-            failures.append(f"version {version} incomplete")
-    return failures
+        return any(e.name.endswith(".npz") for e in os.scandir(folder))
+    except OSError:
+        return False
 
 
-def _current(db: Path) -> int | None:
-    con = sqlite3.connect(db)
+def aim(case: Case, rng: random.Random, first: dict[str, Any]) -> tuple[dict | None, bool]:
+    """Wait for the case's phase; returns the last /health before the kill and whether the
+    kill lands in the phase aimed at. The caller kills right after."""
+    port = case.port
+    if case.name == "learning":
+        time.sleep(rng.uniform(0.0, 2.5))  # learn_s = 120 s of device time: 3 s at speed 40
+        h = _health(port)
+        return h, h is not None and h["service"]["detector"].get("learning_noise_floor", False)
+    if case.name == "detecting":  # (a job may run meanwhile: stored windows start them)
+        target = rng.randrange(1, 12)
+        h = _wait(port, lambda h: h["service"]["windows"] >= target, timeout=15)
+        return h, h is not None and h["service"]["windows"] >= target
+    if case.name == "storing":
+        h = _health(port)
+        deadline = time.monotonic() + 12
+        while time.monotonic() < deadline:  # a batch between its fsync and its delete
+            if _spool_files(case.spool):
+                return h, True
+            time.sleep(0.0005)
+        return h, False
+    if case.name == "job":
+        h = _wait(port, lambda h: h["service"]["recalibrating"], timeout=15)
+        if h is None:
+            return _health(port), False
+        time.sleep(rng.uniform(0.0, 0.8))
+        after = _health(port)
+        return after or h, bool(after and after["service"]["recalibrating"])
+    if case.name == "publication":
+        before = _query(case.url, "SELECT coalesce(max(id), 0) FROM calibrations")[0][0]
+        h = _health(port)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline:  # the moment a new version is committed
+            if _query(case.url, "SELECT coalesce(max(id), 0) FROM calibrations")[0][0] > before:
+                return h, True
+            time.sleep(0.002)
+        return h, False
+    if case.name == "outage":
+        h = _wait(port, lambda h: h["service"]["windows"] >= 2, timeout=15)
+        _pg_allow(case.pg_name, allow=False)
+        time.sleep(rng.uniform(0.5, 3.0))
+        h = _health(port)
+        return h, h is not None and h["service"]["windows_spooled"] > 0
+    if case.name == "disk-full":
+        time.sleep(rng.uniform(1.0, 6.0))
+        h = _health(port)
+        said = h is not None and any(
+            p.startswith("spool:") and str(case.spool) in p and "ENOSPC" in p
+            for p in h["problems"]
+        )  # fmt: skip
+        case.clear_error += said
+        return h, said
+    raise ValueError(case.name)
+
+
+@contextlib.contextmanager
+def setup(name: str, root: Path, capture: Path, size: int) -> Iterator[Case]:
+    """The case's folder, database and spool (a PostgreSQL database, a full tmpfs)."""
+    folder = root / name
+    folder.mkdir()
+    case = Case(name, folder, capture, size, url=f"sqlite:///{folder / 'recal.db'}")
+    mounted = False
     try:
-        row = con.execute("SELECT max(id) FROM calibrations WHERE accepted").fetchone()
+        if name == "outage":
+            from psycopg import sql
+            from sqlalchemy.engine import make_url
+
+            case.pg_name = f"recal_faults_{secrets.token_hex(4)}"
+            with _pg_admin() as admin:
+                admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(case.pg_name)))
+            case.url = (make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg",
+                        database=case.pg_name).render_as_string(hide_password=False))  # fmt: skip
+        if name == "disk-full":
+            case.spool.mkdir()
+            done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=16k", "tmpfs",
+                                   str(case.spool)], capture_output=True, text=True)  # fmt: skip
+            if done.returncode != 0:
+                raise RuntimeError(f"cannot mount a tmpfs: {done.stderr.strip()}")
+            mounted = True
+            fd = os.open(case.spool / "filler", os.O_WRONLY | os.O_CREAT)
+            try:
+                while True:
+                    os.write(fd, b"\0" * 1024)
+            except OSError:
+                pass  # ENOSPC: full
+            finally:
+                os.close(fd)
+        yield case
     finally:
-        con.close()
-    return row[0]
+        if mounted:
+            subprocess.run(["umount", str(case.spool)], check=False)
+        if case.pg_name is not None:
+            from psycopg import sql
+
+            with _pg_admin() as admin:
+                admin.execute(sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS true").format(
+                    sql.Identifier(case.pg_name)))  # fmt: skip
+                admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(
+                    sql.Identifier(case.pg_name)))  # fmt: skip
 
 
-def _start(config: Path) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "service.cli.main", "serve", "--config", str(config),
-         "--log-level", "WARNING"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
-    )  # fmt: skip
-
-
-def _wait_ready(port: int, proc: subprocess.Popen, timeout: float = 60.0) -> None:
-    import httpx
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"daemon exited {proc.returncode}: {proc.stderr.read()[-300:]}")
+def run_case(case: Case, runs: int, rng: random.Random) -> None:
+    case.reference_run()
+    print(f"[{case.name}] reference run: {len(case.reference)} windows", flush=True)
+    killed: tuple[int, int, int] | None = None  # (run, session, windows detected)
+    for run in range(1, runs + 2):  # the last start only checks the run before it
+        if case.name == "outage":
+            _pg_allow(case.pg_name, allow=True)  # the database is back for the restart
+        proc = _start(case.config(run))
         try:
-            if httpx.get(f"http://127.0.0.1:{port}/health", timeout=2).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.2)
-    raise RuntimeError("daemon not ready")
+            first = _wait_ready(case.port, proc)
+        except RuntimeError as exc:
+            case.failures.append(f"run {run}: (re)start failed: {exc}")
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            break
+        if killed is not None:
+            case.check_session(*killed)
+            case.check_restart(killed[0], first)
+        if run > runs:  # the last start: a clean stop must exit 0
+            proc.send_signal(signal.SIGTERM)
+            if proc.wait(60) != 0:
+                case.failures.append(f"final SIGTERM exited {proc.returncode}")
+            break
+        health, hit = aim(case, rng, first)
+        failures = _kill(proc)
+        case.runs += 1
+        case.hit += hit
+        detected = 0 if health is None else health["service"]["windows_detected"]
+        case.detected += detected
+        killed = (run, first["service"]["session"], detected)
+        if case.name == "outage":
+            _pg_allow(case.pg_name, allow=True)
+        case.failures += [f"run {run}: {f}" for f in failures + _check_db(case.url)]
+        print(f"[{case.name}] run {run:3d}: detected {detected:3d}  phase hit {hit!s:5}  "
+              f"versions {_current(case.url)}  failures {len(case.failures)}",
+              flush=True)  # fmt: skip
+    case.versions = _versions(case.url)
+    case.last_version = _current(case.url)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--runs", type=int, default=50, help="runs per case")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated, from: "
+                    + ", ".join(CASES))  # fmt: skip
     args = ap.parse_args()
     from recal.session import simulate_session
     from service.capture_sim import kvh_like_truth, session_to_kvh
 
     rng = random.Random(args.seed)
-    folder = Path(tempfile.mkdtemp(prefix="recal-faults-"))
+    root = Path(tempfile.mkdtemp(prefix="recal-faults-"))
     session = simulate_session(kvh_like_truth(1), "24", latitude_deg=45.0, seed=1, rate_hz=RATE,
                                window_s=12.0, slew_s=3.0, first_hold_s=12.0)  # fmt: skip
-    capture = folder / "capture.bin"
-    capture.write_bytes(session_to_kvh(session, rng=1)[0])
-    port = _free_port()
-    config = _config(folder, capture, port)
-    db = folder / "recal.db"
-
-    # the reference: a clean run's windows
-    proc = _start(config)
-    _wait_ready(port, proc)
-    time.sleep(14)
-    proc.send_signal(signal.SIGTERM)
-    clean_exit = proc.wait(60) == 0
-    reference = _windows(db)[1]
-    print(f"reference run: {len(reference)} windows, clean exit {clean_exit}")
-
-    failures: list[str] = [] if clean_exit else ["reference run did not exit 0"]
-    kinds = {"daemon -9": 0, "worker -9": 0, "group TERM": 0}
-    reported = len(failures)
-    for run in range(1, args.runs + 1):
-        proc = _start(config)
+    capture = root / "capture.bin"
+    data = session_to_kvh(session, rng=1)[0]
+    capture.write_bytes(data)
+    results: list[Case] = []
+    for name in args.cases.split(","):
+        t0 = time.monotonic()
         try:
-            _wait_ready(port, proc)
-        except RuntimeError as exc:
-            failures.append(f"run {run}: restart failed: {exc}")
-            break
-        # 4. the published file follows the database from the start
-        current = _current(db)
-        if current is not None:
-            time.sleep(0.5)
-            published = json.loads((folder / "coefficients.json").read_text())["version"]
-            if published != current:
-                failures.append(f"run {run}: file has version {published}, database {current}")
-        time.sleep(rng.uniform(0.2, 10.0))
-        sid = proc.pid
-        workers = _workers(sid, proc.pid)
-        kind = rng.choice(["daemon -9", "worker -9", "group TERM"])
-        if kind == "worker -9" and not workers:
-            kind = "group TERM"
-        kinds[kind] += 1
-        if kind == "daemon -9":
-            os.kill(proc.pid, signal.SIGKILL)
-            proc.wait(10)
-        elif kind == "worker -9":
-            for w in workers:
-                os.kill(w, signal.SIGKILL)
-            time.sleep(1.0)
-            proc.send_signal(signal.SIGTERM)
-            if proc.wait(60) != 0:
-                failures.append(
-                    f"run {run}: SIGTERM after a killed worker exited {proc.returncode}"
-                )
-        else:
-            os.killpg(proc.pid, signal.SIGTERM)
-            if proc.wait(60) != 0:
-                failures.append(f"run {run}: group SIGTERM exited {proc.returncode}")
-        deadline = time.monotonic() + 5.0  # a worker's parent watch reacts within 0.25 s
-        while (left := _session_processes(sid)) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        if left:
-            failures.append(f"run {run} ({kind}): {len(left)} process(es) left: {left}")
-            for p in left:
-                os.kill(p, signal.SIGKILL)
-        failures += [f"run {run}: {f}" for f in _check_db(db)]
-        for s_id, got in _windows(db).items():
-            if not _is_prefix(got, reference):
-                failures.append(
-                    f"run {run}: session {s_id} windows are not a prefix of the clean run's "
-                    f"(starts {np.round(got[:, 0], 2).tolist()})"
-                )
-        for f in failures[reported:]:
-            print("  FAIL", f, flush=True)
-        reported = len(failures)
-        print(f"run {run:3d}: {kind:10s} windows so far {sum(map(len, _windows(db).values())):5d}"
-              f"  versions {_current(db)}  failures {len(failures)}", flush=True)  # fmt: skip
-    print(
-        f"\n{args.runs} runs ({', '.join(f'{k}: {v}' for k, v in kinds.items())}): "
-        f"{len(failures)} failures"
-    )
-    return 1 if failures else 0
+            with setup(name, root, capture, len(data)) as case:
+                results.append(case)
+                run_case(case, args.runs, rng)
+        except Exception as exc:  # noqa: BLE001 - one case's set-up failing is reported
+            print(f"[{name}] could not run: {exc}", flush=True)
+            continue
+        print(f"[{name}] {time.monotonic() - t0:.0f} s", flush=True)
+        for f in case.failures:
+            print(f"  FAIL {f}", flush=True)
+    print(f"\n{'case':12s} {'runs':>5s} {'detected':>9s} {'lost':>5s} {'doubled':>8s} "
+          f"{'versions':>9s} {'in phase':>9s} {'failures':>9s}")  # fmt: skip
+    total = 0
+    for c in results:
+        total += len(c.failures)
+        extra = f"  (clear ENOSPC error in {c.clear_error})" if c.name == "disk-full" else ""
+        print(f"{c.name:12s} {c.runs:5d} {c.detected:9d} {c.lost:5d} {c.doubled:8d} "
+              f"{c.versions:9d} {c.hit:5d}/{c.runs:<3d} {len(c.failures):9d}{extra}")  # fmt: skip
+    shutil.rmtree(root, ignore_errors=True)
+    return 1 if total else 0
 
 
 if __name__ == "__main__":
