@@ -110,10 +110,10 @@ class Spool:
         except OSError as exc:
             self._seq -= 1
             tmp.unlink(missing_ok=True)
-            raise SpoolWriteError(
-                exc.errno, f"spool {self.directory}: cannot write a window batch "
-                f"({describe_os_error(exc)})"
-            ) from exc  # fmt: skip
+            err = SpoolWriteError(f"spool {self.directory}: cannot write a window batch "
+                                  f"({describe_os_error(exc)})")  # fmt: skip
+            err.errno = exc.errno
+            raise err from exc
         entry.path = self.directory / name
         return entry.path
 
