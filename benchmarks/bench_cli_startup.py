@@ -26,7 +26,7 @@ from pathlib import Path
 
 CLI = [sys.executable, "-m", "service.cli.main"]
 HELP_TARGET_S = 0.3
-HEAVY = ("numpy", "scipy", "recal.calibrate", "recal.static", "drivers")
+HEAVY = ("numpy", "scipy", "recal.solve.calibrate", "recal.detect.static", "drivers")
 
 
 def wall(cmd: list[str]) -> float:

@@ -53,18 +53,18 @@ DESIGNS = {"24-position": ("24", None), "random 24": ("random", 24), "random 36"
 
 
 def _profiles():
-    from recal.simulate import TemperatureSpec
+    from recal.sim.simulate import TemperatureSpec
 
     return {"ramp": TemperatureSpec(20.0, 2.0), "swing": TemperatureSpec(15.0, 4.0, 8.0, 0.7)}
 
 
 def _ranking_run(job: tuple[str, str, str, int]) -> dict:
-    from recal.calibrate import CalibrationOptions
-    from recal.coefficients import CoefficientSet
-    from recal.diagnose import diagnose
+    from recal.diagnose.effects import diagnose
     from recal.errors import RecalInputError
-    from recal.simulate import simulate_positions
-    from recal.terms import catalogue_terms
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.terms import catalogue_terms
+    from recal.sim.simulate import simulate_positions
+    from recal.solve.calibrate import CalibrationOptions
 
     effect, design, profile, seed = job
     kind, n = DESIGNS[design]
@@ -90,11 +90,11 @@ def _ranking_run(job: tuple[str, str, str, int]) -> dict:
 
 
 def _clean_run(seed: int) -> dict:
-    from recal.calibrate import CalibrationOptions
-    from recal.coefficients import CoefficientSet
-    from recal.diagnose import diagnose
+    from recal.diagnose.effects import diagnose
     from recal.errors import RecalInputError
-    from recal.simulate import simulate_positions
+    from recal.model.coefficients import CoefficientSet
+    from recal.sim.simulate import simulate_positions
+    from recal.solve.calibrate import CalibrationOptions
 
     rng = np.random.default_rng(seed)
     if seed % 4 == 0:
@@ -116,11 +116,11 @@ def _clean_run(seed: int) -> dict:
 
 
 def _magnetic_run(job: tuple[str, int]) -> dict:
-    from recal.calibrate import CalibrationOptions, calibrate
-    from recal.coefficients import CoefficientSet
-    from recal.diagnose import diagnose
-    from recal.plugins import hidden_plugin
-    from recal.simulate import design_orientations, simulate_positions
+    from recal.diagnose.effects import diagnose
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.plugins import hidden_plugin
+    from recal.sim.simulate import design_orientations, simulate_positions
+    from recal.solve.calibrate import CalibrationOptions, calibrate
     from service.cli.common import load_plugin
 
     design, seed = job

@@ -1,9 +1,9 @@
 """Drift test (issue 20): false alarms over many steady sessions and detection delays after a step,
-the GLR of ``recal.drift`` beside a plain CUSUM that ignores the coefficients' covariance.
+the GLR of ``recal.diagnose.drift`` beside a plain CUSUM that ignores the coefficients' covariance.
 
 Run: python benchmarks/bench_drift.py [--seeds 40]. About 1 s per seed on 2 cores.
 
-Each session: coefficients fitted (``recal.calibrate``, LM) on 30 simulated windows of a random
+Each session: coefficients fitted (``recal.solve.calibrate``, LM) on 30 simulated windows of a random
 design (seed 000's FOG, default noise: about 0.003 deg/h and 2 micro-g per window mean), then 30
 new windows from the same truth (steady) or with a step before the first new window: gyro x
 scale +600 ppm, or accel x bias +5 micro-g. Acceptance (issue 20): steady, at most one alarm in
@@ -12,7 +12,7 @@ scale +600 ppm, or accel x bias +5 micro-g. Acceptance (issue 20): steady, at mo
 Columns: "GLR, with the covariance" (calibrate's full covariance: the daemon, and ``recal drift``
 on a file ``calibrate -o`` wrote), "GLR, 1-sigma only" (a coefficients file without its
 covariance: the 1-sigma values as a diagonal), "GLR, coefficients
-exact" (covariance zero) and "plain CUSUM" (``recal.drift.plain_cusum``: the three invariants
+exact" (covariance zero) and "plain CUSUM" (``recal.diagnose.drift.plain_cusum``: the three invariants
 whitened by each window's noise alone). "lambda" is the information a single test that knew the
 change window and the coefficient would have by the acceptance window (noncentrality
 Delta^2 I_jj, median over seeds): what any test at this false-alarm rate has to work with.
@@ -29,9 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from recal.calibrate import CalibrationOptions, calibrate  # noqa: E402
-from recal.coefficients import CoefficientSet  # noqa: E402
-from recal.drift import (  # noqa: E402
+from recal.diagnose.drift import (  # noqa: E402
     DriftConfig,
     _parts,
     drift_inputs,
@@ -39,7 +37,9 @@ from recal.drift import (  # noqa: E402
     plain_cusum,
     whiten,
 )
-from recal.simulate import simulate_positions  # noqa: E402
+from recal.model.coefficients import CoefficientSet  # noqa: E402
+from recal.sim.simulate import simulate_positions  # noqa: E402
+from recal.solve.calibrate import CalibrationOptions, calibrate  # noqa: E402
 
 LAT = 45.0
 STEPS = {

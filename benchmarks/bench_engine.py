@@ -19,7 +19,7 @@ Every number is printed with its target and PASS/MISS.
 
 "With slews": sample-level sessions (KVH-like captures: holds joined by slews, both triads, LM),
 calibrated without and with the slews; the gyro's antisymmetric misalignment is compared in the
-gauge a slew fit holds (the accelerometer frame, recal.slews.in_accel_frame).
+gauge a slew fit holds (the accelerometer frame, recal.detect.slews.in_accel_frame).
 """
 
 from __future__ import annotations
@@ -31,14 +31,14 @@ import time
 
 import numpy as np
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.model import Model, ParameterLayout
-from recal.nafsa import NafsaConfig
-from recal.observability import analyze, jacobian
-from recal.phases import paper_phases
-from recal.problem import Problem
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import Model, ParameterLayout
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.nafsa import NafsaConfig
+from recal.solve.observability import analyze, jacobian
+from recal.solve.phases import paper_phases
+from recal.solve.problem import Problem
 
 GROUPS = ("scale", "bias", "misalignment (sym)")
 PAIRS = (("Exz", "Eyz"), ("Exy", "Ezy"), ("Eyx", "Ezx"))
@@ -155,8 +155,8 @@ def accuracy(datasets: int, mc: int, lm_datasets: int) -> dict:
 def slews_accuracy(seeds: int) -> dict:
     """Per seed, without and with slews: gyro coefficients held, worst |error| / sigma over the
     estimated gyro coefficients, antisymmetric gyro errors and their predicted 1-sigma."""
-    from recal.session import session_positions, session_slews, simulate_session
-    from recal.slews import in_accel_frame
+    from recal.detect.slews import in_accel_frame
+    from recal.sim.session import session_positions, session_slews, simulate_session
 
     out: dict[str, dict[str, list]] = {"without slews": {}, "with slews": {}}
     for k in range(seeds):
@@ -197,7 +197,7 @@ def slews_accuracy(seeds: int) -> dict:
 
 def full_mcs_time() -> dict[str, float]:
     """One MCS-NAFSA as the seed runs it: 100 runs, 50 fish, 60 iterations, 3 gyro phases."""
-    from recal.mcs import run_mcs
+    from recal.solve.mcs import run_mcs
 
     truth = aged_truth(np.random.default_rng(0))
     pos = simulate_positions(truth, "24", sensors=("gyro",), seed=0)

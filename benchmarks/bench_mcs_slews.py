@@ -35,13 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
-from recal import calibrate as calibrate_module
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.observability import jacobian
-from recal.positions import Positions
-from recal.session import simulate_session
-from recal.slews import Slews, in_accel_frame
-from recal.surrogate import SurrogateProblem, data_noise
+from recal.detect.slews import Slews, in_accel_frame
+from recal.model.positions import Positions
+from recal.sim.session import simulate_session
+from recal.solve import calibrate as calibrate_module
+from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.observability import jacobian
+from recal.solve.surrogate import SurrogateProblem, data_noise
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.cli.main import main as recal_main
 
@@ -78,7 +78,7 @@ def cpu_s() -> float:
 
 
 class Timer:
-    """Wall time spent in wrapped functions of recal.calibrate (run in this process)."""
+    """Wall time spent in wrapped functions of recal.solve.calibrate (run in this process)."""
 
     def __init__(self, *names: str) -> None:
         self.names, self.spent = names, dict.fromkeys(names, 0.0)

@@ -10,11 +10,11 @@ which does not age). The aged unit is recalibrated from a simulated 24-position 
 (seed 002 scheme, 24 windows of 1 h: the seed used 24 h of data) by MCS-NAFSA and by LM, with
 the old set as prior, from the window means alone (the papers' method); and, as the service
 does by default, by LM from a sample-level session of the same 24 positions (600 s holds at
-50 Hz) with the 5 s slews between them (recal.slews), which pins the gyro misalignment.
+50 Hz) with the 5 s slews between them (recal.detect.slews), which pins the gyro misalignment.
 
 Table 5 structure: 24 h static navigation after a 300 s alignment, at Harbin's latitude, with
 (a) the old coefficients, (b) MCS-NAFSA, (c) LM, (d) the truth. Each 24 h error is printed with
-the linear psi-angle prediction (recal.ins_error) beside it. Table 6 structure: a simulated lake
+the linear psi-angle prediction (recal.nav.ins_error) beside it. Table 6 structure: a simulated lake
 voyage (moored alignment, then speed and heading changes, roll and pitch from waves), north
 and east error at the end against the true track, over several voyages (noise seeds), with the
 part each coefficient group contributes. Then: 10 Hz decimation cost, wall time of the 24 h
@@ -35,13 +35,13 @@ import time
 
 import numpy as np
 
-from recal.alignment import align_static
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.ins_error import describe_change, predict_from_uncertainty, predict_static_error
-from recal.navigation import NMI_M, correct_outputs, decimate, navigate
-from recal.simulate import NoiseSpec, simulate_positions
-from recal.trajectory import DEFAULT_LEGS, Leg, VoyageSpec, simulate_voyage
+from recal.model.coefficients import CoefficientSet
+from recal.nav.alignment import align_static
+from recal.nav.ins_error import describe_change, predict_from_uncertainty, predict_static_error
+from recal.nav.navigation import NMI_M, correct_outputs, decimate, navigate
+from recal.nav.trajectory import DEFAULT_LEGS, Leg, VoyageSpec, simulate_voyage
+from recal.sim.simulate import NoiseSpec, simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 
 HARBIN_LAT = 45.75
 QIANDAO_LAT, QIANDAO_LON = 29.6, 119.0
@@ -90,7 +90,7 @@ def recalibrate(truth: CoefficientSet, old: CoefficientSet, mc: int, seed: int) 
 
 def recalibrate_with_slews(truth: CoefficientSet, old: CoefficientSet, seed: int) -> tuple:
     """Both triads by LM from every sample of the 24 positions and the slews between them."""
-    from recal.session import session_positions, session_slews, simulate_session
+    from recal.sim.session import session_positions, session_slews, simulate_session
 
     t0 = time.perf_counter()
     noise = NoiseSpec(arw_deg_rt_h=0.0005, vrw_ug_rt_hz=20.0)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from recal.positions import Positions  # noqa: E402
+from recal.model.positions import Positions  # noqa: E402
 
 TARGET_S, TARGET_MB, TARGET_N = 10.0, 500.0, 10_000
 

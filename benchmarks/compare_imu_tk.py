@@ -41,9 +41,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.positions import Positions
-from recal.slews import Slews, quat_from_rotvec, quat_multiply, rotate_back
+from recal.detect.slews import Slews, quat_from_rotvec, quat_multiply, rotate_back
+from recal.model.positions import Positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 
 DEG_S = math.pi / 180.0
 
@@ -140,7 +140,7 @@ def main() -> None:
     # ---- this project ------------------------------------------------------------------------
     ours = calibrate(pos, CalibrationOptions(latitude_deg=57.834, slews=slews))
     c = ours.coefficients.values
-    from recal.terms import MISALIGNMENT_INDEX
+    from recal.model.terms import MISALIGNMENT_INDEX
 
     E = np.zeros((3, 3))
     E[tuple(zip(*MISALIGNMENT_INDEX, strict=True))] = c["gyro.misalignment"]
@@ -246,7 +246,7 @@ def own_fits(pos: Positions, slews: Slews, chi2_both: float, gyro_scale_rel_sd: 
     window-mean noise taken as std/sqrt(n) and as the *_sem columns, of the default fit (both
     triads and the slews), and why the gyro alone is not calibrated from Earth rate."""
     from recal.errors import RecalInputError
-    from recal.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS
+    from recal.model.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS
 
     sem = set(ACCEL_SEM_COLUMNS + GYRO_SEM_COLUMNS)
     plain = Positions.from_columns({k: v for k, v in pos.columns.items() if k not in sem})

@@ -5,7 +5,7 @@ would run it (flags: --columns and --rate only), plus chi2_red, convergence and 
 
     python benchmarks/compare_imucal.py
 
-imucal's calibration is converted with recal.imucal (its K R, its 9.81 m/s^2, its deg/s). Both
+imucal's calibration is converted with recal.model.imucal (its K R, its 9.81 m/s^2, its deg/s). Both
 fits assume the same latitude (45 deg, calibrate's default), which then cancels.
 """
 
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recal.imucal import coefficients_from_imucal
-from recal.reference import normal_gravity_g
+from recal.model.imucal import coefficients_from_imucal
+from recal.model.reference import normal_gravity_g
 from service.cli.main import main
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "imucal"

@@ -19,12 +19,12 @@ import argparse
 
 import numpy as np
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import SEED_000_TABLE2, CoefficientSet
-from recal.model import Model, ParameterLayout
-from recal.observability import analyze, jacobian
-from recal.problem import Problem
-from recal.simulate import simulate_positions
+from recal.model.coefficients import SEED_000_TABLE2, CoefficientSet
+from recal.model.error_model import Model, ParameterLayout
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.observability import analyze, jacobian
+from recal.solve.problem import Problem
 
 #: Seed 000 Table 3 "Relative Error" column, as printed (units as in the paper).
 PAPER_RELATIVE_ERROR = [0.00912194, 0.04054963, 0.03868713, 0.001633171, 0.001031810,

@@ -1,4 +1,4 @@
-"""Byte-level simulated captures: a :class:`recal.session.Session` as the bytes a KVH would send.
+"""Byte-level simulated captures: a :class:`recal.sim.session.Session` as the bytes a KVH would send.
 
 The frames are what the device sends with its default settings: delta angle per sample in rad
 (float32), accel in g (float32), temperature as an int16 of whole degC (so quantised), status 0x77
@@ -24,8 +24,8 @@ from drivers import (
     physical_to_raw_gyro,
     physical_to_raw_temperature,
 )
-from recal.coefficients import CoefficientSet
-from recal.session import Session
+from recal.model.coefficients import CoefficientSet
+from recal.sim.session import Session
 
 #: KVH data formats a capture can be written in.
 CAPTURE_FORMATS = ("kvh-a", "kvh-b", "kvh-c")

@@ -74,6 +74,13 @@ class Section(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+def servable_formats() -> list[str]:
+    """The registered formats the daemon can read from one port (not a pair of files)."""
+    from drivers.registry import input_formats
+
+    return [f.name for f in input_formats() if f.inputs == 1]
+
+
 class DeviceSettings(Section):
     url: str = Field(
         "loop://",
@@ -84,6 +91,7 @@ class DeviceSettings(Section):
         "kvh-a",
         description="input format, one registered in drivers.registry (recal positions --help "
         "lists them: KVH binary frames, csv lines, ...)",
+        json_schema_extra={"choices": lambda: servable_formats()},
     )
     baudrate: int = Field(921600, gt=0, description="serial line speed (bit/s)")
     rate_hz: float = Field(
@@ -156,7 +164,7 @@ class SiteSettings(Section):
 
 
 class DetectorSettings(Section):
-    """The static detector. Durations left unset follow the device rate (recal.static); the
+    """The static detector. Durations left unset follow the device rate (recal.detect.static); the
     thresholds come, in this order, from explicit values, the noise floor stored for the device
     (reused after a restart: the unit may be moving then), an initial still period
     (init_still_s), or the quietest stretches of the first ``learn_s`` seconds."""
@@ -208,8 +216,8 @@ class SchedulerSettings(Section):
     trigger: list[Trigger] = Field(
         ["drift", "information"],
         description="what starts an automatic recalibration once one is accepted: 'drift' (the "
-        "new windows show the coefficients changed, recal.drift), 'information' (they would "
-        "sharpen them by min_information_gain, recal.information), 'count' (min_new_positions "
+        "new windows show the coefficients changed, recal.diagnose.drift), 'information' (they would "
+        "sharpen them by min_information_gain, recal.diagnose.information), 'count' (min_new_positions "
         "new windows); a list or one name (the first calibration always waits for "
         "min_positions windows)",
     )
@@ -239,7 +247,7 @@ class SchedulerSettings(Section):
     )
     use_slews: bool = Field(
         True,
-        description="calibrate the gyro from the stored motion between windows too (recal.slews)",
+        description="calibrate the gyro from the stored motion between windows too (recal.detect.slews)",
     )
     job_timeout_s: float = Field(
         1800.0, gt=0, description="a job running longer is killed and recorded as failed (s)"
@@ -407,7 +415,7 @@ class Settings(BaseSettings):
 
 
 def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:
-    """``cls`` (a dataclass of a lower layer, e.g. ``recal.static.DetectorConfig`` or
+    """``cls`` (a dataclass of a lower layer, e.g. ``recal.detect.static.DetectorConfig`` or
     ``drivers.DecoderConfig``) from the fields of a settings ``section`` it shares by name, plus
     ``extra``: no field-by-field copy to fall out of step when either side gains a field."""
     names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]

@@ -40,7 +40,7 @@ from sqlalchemy.exc import ArgumentError, NoSuchModuleError, SQLAlchemyError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 from sqlalchemy.pool import StaticPool
 
-from recal.positions import CANONICAL_ORDER, Positions
+from recal.model.positions import CANONICAL_ORDER, Positions
 
 #: Schema version this code writes, kept by the migrations (service/migrations: revision 0003
 #: records 3); a database with a newer one is refused, and so is one at an Alembic revision
@@ -189,7 +189,7 @@ class NoiseFloorRow(Base):
 
 
 class SlewRow(Base):
-    """The motion between two stored windows, reduced to group sums (recal.slews), or the
+    """The motion between two stored windows, reduced to group sums (recal.detect.slews), or the
     reason it was dropped (``dropped``; then ``data`` is NULL). ``data`` holds float64 values:
     the first window's mean gyro output (3), then per group its sample count, S, W and C
     (``groups`` x 10)."""
@@ -427,7 +427,7 @@ class Store:
         """Store positions (name -> (M,) array, docs/reference.md#positions); returns their ids.
 
         The columns are validated as a :class:`Positions` first (RecalInputError if bad).
-        ``slews``: ``(first row, second row, recal.slews.ReducedSlew)`` between these windows,
+        ``slews``: ``(first row, second row, recal.detect.slews.ReducedSlew)`` between these windows,
         stored in the same transaction; row -1 is the window stored before, ``previous_id``
         (a slew whose first window is unknown is skipped). ``period_s``: gyro sample period.
         ``spool_key``: the batch's spool key; when positions with it are already stored (a

@@ -3,7 +3,7 @@
 A calibration is rejected when its design is not observable enough, its residuals exceed the
 noise, a scale factor is poorly determined, an estimated coefficient jumped too far from the
 current accepted version, or effects beyond the seed model moved the core coefficients by more
-than diagnose trusts without a check (:func:`recal.diagnose.effects_check`). Every decision
+than diagnose trusts without a check (:func:`recal.diagnose.effects.effects_check`). Every decision
 carries plain-English reasons.
 """
 
@@ -14,15 +14,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from recal.calibrate import CalibrationResult
-from recal.navigation import NMI_M
+from recal.nav.navigation import NMI_M
+from recal.solve.calibrate import CalibrationResult
 from service.config import GateSettings
 from service.db import CalibrationRecord
 
 if TYPE_CHECKING:
-    from recal.ins_error import NavigationImpact
+    from recal.nav.ins_error import NavigationImpact
 
-#: Verdicts of recal.observability from worst to best.
+#: Verdicts of recal.solve.observability from worst to best.
 VERDICTS = ("insufficient", "partial", "full")
 #: Seed categories stored under the sensor key (docs/reference.md#coefficients); the rest are
 #: effects.
@@ -52,9 +52,9 @@ def gate(
 ) -> GateDecision:
     """Accept or reject ``result`` against the current accepted record ``previous``.
 
-    ``impact``: the version's predicted navigation impact (:mod:`recal.ins_error`), checked when
+    ``impact``: the version's predicted navigation impact (:mod:`recal.nav.ins_error`), checked when
     ``refuse_worse_navigation`` is set and summarised in the notes otherwise.
-    ``effects_check``: :func:`recal.diagnose.effects_check` of a fit with effects; an untrusted
+    ``effects_check``: :func:`recal.diagnose.effects.effects_check` of a fit with effects; an untrusted
     one is refused (a note with ``allow_unconfirmed_effects``).
     ``change_expected``: why a jump beyond ``max_change_sigma`` is expected (the drift test
     declared a change at its configured false-alarm rate, and the fit uses only the windows

@@ -21,16 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from recal.detect.floor import NoiseFloor, NoiseFloorEstimator
+from recal.detect.slews import SlewTracker
+from recal.detect.static import DetectorConfig, StaticDetector
+from recal.detect.windows import Window, windows_to_columns
 from recal.errors import RecalInputError
-from recal.slews import SlewTracker
-from recal.static import (
-    DetectorConfig,
-    NoiseFloor,
-    NoiseFloorEstimator,
-    StaticDetector,
-    Window,
-    windows_to_columns,
-)
 from service.config import Settings
 from service.db import StoreError, UnknownSessionError
 from service.events import Events
@@ -162,7 +157,7 @@ class _Spooled:
 class Ingest:
     """Feeds decoded frames to the static detector and stores each closed window.
 
-    The motion between consecutive windows is kept too (:class:`recal.slews.SlewTracker`,
+    The motion between consecutive windows is kept too (:class:`recal.detect.slews.SlewTracker`,
     bounded memory) and stored with them, so the gyro can be calibrated from the slews.
 
     With a ``spool`` (:class:`service.spool.Spool`) each detector call's windows are written to

@@ -1,7 +1,7 @@
 """One recalibration job, as it runs in the worker process.
 
 :func:`calibration_job` calibrates the stored positions, predicts what the new coefficients do
-to navigation (:func:`navigation_impact_of`, recal.ins_error) and passes the result through the
+to navigation (:func:`navigation_impact_of`, recal.nav.ins_error) and passes the result through the
 acceptance gate (service.gate). It returns a picklable :class:`JobOutcome` to the scheduler.
 """
 
@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.drift import covariance_to_json
+from recal.diagnose.drift import covariance_to_json
 from recal.errors import RecalInputError
-from recal.positions import Positions
+from recal.model.positions import Positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.jobs import report_progress
 
 
@@ -64,7 +64,7 @@ def calibration_job(
     except RecalInputError as exc:
         return JobOutcome(None, False, [str(exc)], error=str(exc))
     document = result.to_json_dict()
-    # the full covariance: the drift and information triggers whiten by it (recal.drift)
+    # the full covariance: the drift and information triggers whiten by it (recal.diagnose.drift)
     document["covariance"] = covariance_to_json(result.layout.names, result.covariance)
     try:
         impact = navigation_impact_of(result, previous, site or {})
@@ -74,7 +74,7 @@ def calibration_job(
     document["navigation_impact"] = None if impact is None else impact.to_json_dict()
     check = None
     if options.effects:  # not better than the seed model while its core shift is unconfirmed
-        from recal.diagnose import effects_check
+        from recal.diagnose.effects import effects_check
 
         check = effects_check(result, options)
         document["effects_check"] = check
@@ -84,13 +84,13 @@ def calibration_job(
 
 def navigation_impact_of(result: Any, previous: Any, site: dict[str, Any]) -> Any:
     """The predicted 24 h static navigation error of a fit, and of replacing ``previous`` (the
-    accepted :class:`CalibrationRecord`, or None) by it (:class:`recal.ins_error.NavigationImpact`).
+    accepted :class:`CalibrationRecord`, or None) by it (:class:`recal.nav.ins_error.NavigationImpact`).
 
     Coefficients the fit held keep the accepted version's 1-sigma (they were held at its
     values); a triad the fit did not calibrate is taken from the accepted version.
     """
-    from recal.coefficients import CoefficientSet
-    from recal.ins_error import (
+    from recal.model.coefficients import CoefficientSet
+    from recal.nav.ins_error import (
         complete_seed_set,
         navigation_impact,
         predict_from_uncertainty,

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from recal.calibrate import CalibrationOptions, check_design
-from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.positions import Positions
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import Positions
+from recal.solve.calibrate import CalibrationOptions, check_design
 from service.config import Settings
 from service.db import StoreError
 from service.events import Events
@@ -260,7 +260,7 @@ class Scheduler:
     def _unit_problems(self, positions: Positions) -> list[str]:
         """A KVH outputs physical units: windows far from Earth's rate or 1 g mean a wrong
         ``[device]`` setting, named in the reason (emitted once as a device event)."""
-        from recal.plausibility import check_units
+        from recal.detect.plausibility import check_units
 
         d = self._settings.device
         units = "[device] gyro_output / gyro_units"

@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from recal.detect.slews import ReducedSlew
 from recal.errors import RecalInputError
-from recal.slews import ReducedSlew
 
 #: Version of the file layout; a file of another version is left alone (and reported).
 FORMAT = 1

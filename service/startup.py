@@ -32,11 +32,11 @@ def check_prior(path: str | None) -> None:
 
 
 def read_prior(path: str) -> Any:
-    """``prior_path`` as a :class:`recal.coefficients.CoefficientSet` (RecalInputError naming
+    """``prior_path`` as a :class:`recal.model.coefficients.CoefficientSet` (RecalInputError naming
     the setting when it cannot be read)."""
     if not Path(path).is_file():
         raise RecalInputError(f"prior_path: {path} is not a file")
-    from recal.coefficients import read_coefficients
+    from recal.model.coefficients import read_coefficients
 
     try:
         text = Path(path).read_text(encoding="utf-8-sig")

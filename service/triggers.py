@@ -3,12 +3,12 @@
 Once a version is accepted, the windows stored after the last one it used are looked at each
 time new ones arrive:
 
-* **drift** (:mod:`recal.drift`): the sequential GLR test of those windows against the accepted
+* **drift** (:mod:`recal.diagnose.drift`): the sequential GLR test of those windows against the accepted
   coefficients and their covariance, at the false-alarm rate the configuration sets
   (``drift_false_alarm_days`` at ``windows_per_day``). An alarm starts a job on the windows
   since the estimated change, once they form a design the engine can use (before that, the
   windows from before the change would pull the answer back towards the old unit);
-* **information** (:mod:`recal.information`): the expected cut of the accepted coefficients'
+* **information** (:mod:`recal.diagnose.information`): the expected cut of the accepted coefficients'
   1-sigma if the new windows (and the slews between them) were added; a job runs when some
   coefficient would sharpen by ``min_information_gain``;
 * **count**: ``min_new_positions`` new windows since the last job (the old rule).
@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from recal.coefficients import CoefficientSet
+from recal.detect.slews import ReducedSlew, slews_from_reduced
 from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.slews import ReducedSlew, slews_from_reduced
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import Positions
 from service.config import Settings
 
 log = logging.getLogger("recal.triggers")
@@ -60,7 +60,7 @@ class Evaluation:
 def accepted_coefficients(record: Any) -> tuple[CoefficientSet, dict[str, Any] | None]:
     """The accepted version's coefficients (with their 1-sigma) and its ``covariance`` block
     (None in records stored before versions carried it: the 1-sigma then act as a diagonal)."""
-    from recal.coefficients import read_coefficients
+    from recal.model.coefficients import read_coefficients
 
     cs = read_coefficients(record.document, source=f"version {record.version}")
     return cs, record.document.get("covariance")
@@ -97,7 +97,7 @@ def describe_reason(why: dict[str, Any] | None) -> str:
 
 
 def stored_slews(store: Any, positions: Positions, ids: list[int]) -> Any:
-    """The stored slews between these positions as a :class:`recal.slews.Slews` in their rows
+    """The stored slews between these positions as a :class:`recal.detect.slews.Slews` in their rows
     (None when there are none)."""
     records = store.slews(ids)
     if not records:
@@ -151,7 +151,7 @@ def evaluate(
     if "information" in s.trigger:
         try:
             slews = stored_slews(store, positions, ids) if s.use_slews else None
-            from recal.information import information_gain
+            from recal.diagnose.information import information_gain
 
             gain = information_gain(positions, coefficients, covariance, lat, height, slews)
             out.information = gain.to_json_dict() | {"threshold": s.min_information_gain}
@@ -175,7 +175,7 @@ def _drift(
     settings: Settings,
 ) -> dict[str, Any]:
     """The drift test of these windows: last statistic, threshold, alarm, suspect (JSON)."""
-    from recal.drift import DriftConfig, drift_inputs, drift_test
+    from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test
 
     s = settings.scheduler
     inputs = drift_inputs(positions, coefficients, covariance, settings.site.latitude_deg,

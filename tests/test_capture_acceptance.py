@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 
 from drivers import DecoderConfig, decode_bulk
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.positions import Positions
-from recal.session import Session, simulate_session
-from recal.simulate import NoiseSpec
-from recal.static import DetectorConfig
+from recal.detect.static import DetectorConfig
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import Positions
+from recal.sim.session import Session, simulate_session
+from recal.sim.simulate import NoiseSpec
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.capture_sim import CaptureInfo, Damage, kvh_like_truth, session_to_kvh
 from service.cli.main import main
 

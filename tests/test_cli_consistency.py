@@ -10,11 +10,11 @@ import re
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.diagnose import diagnose
-from recal.session import simulate_session
-from recal.simulate import NoiseSpec, simulate_positions
+from recal.diagnose.effects import diagnose
+from recal.model.coefficients import CoefficientSet
+from recal.sim.session import simulate_session
+from recal.sim.simulate import NoiseSpec, simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 
@@ -121,7 +121,7 @@ def test_prior_description_says_when_there_is_no_ellipsoid_fit():
 def test_diagnose_verdict_and_json_name_the_same_worst_positions():
     truth = CoefficientSet.seed_truth()
     truth.values["gyro.bias_drift"] = np.array([0.05, 0.0, -0.03])
-    from recal.terms import catalogue_terms
+    from recal.model.terms import catalogue_terms
 
     pos = simulate_positions(truth, "random", 24, 45.0, seed=2,
                              hidden=[catalogue_terms()["gyro.bias_drift"]])  # fmt: skip
@@ -144,8 +144,8 @@ def test_a_disagreement_note_names_the_effect_that_explains_more_or_none():
     out-of-catalogue misfit (a magnetic bias), only drift-like candidates tried."""
     from pathlib import Path
 
-    from recal.plugins import hidden_plugin
-    from recal.simulate import design_orientations
+    from recal.model.plugins import hidden_plugin
+    from recal.sim.simulate import design_orientations
     from service.cli.common import load_plugin
 
     plugin = Path(__file__).resolve().parents[1] / "docs" / "examples" / "faraday_plugin.py"
@@ -167,7 +167,7 @@ def test_a_disagreement_note_names_the_effect_that_explains_more_or_none():
 def test_diagnose_does_not_call_an_exactly_determined_fit_at_the_noise_floor():
     """Six positions, one triad: six equations for six directions, so the residual is zero by
     construction; calibrate says it cannot check the fit, and so must diagnose."""
-    from recal.report import diagnosis_html
+    from recal.report.html import diagnosis_html
 
     pos = simulate_positions(CoefficientSet.seed_truth(), "random", 6, 45.0, seed=1,
                              sensors=("accel",))  # fmt: skip

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from drivers import CsvLogParser, DriverInputError, parse_column_map
-from recal.positions import Positions
-from recal.session import simulate_session
+from recal.model.positions import Positions
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth
 from service.cli.main import main
 

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
 from service.cli.main import main
 
 LAT = "45"

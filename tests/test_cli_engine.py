@@ -134,7 +134,7 @@ def test_subprocess_exit_code_and_no_traceback(tmp_path):
 
 PLUGIN = '''
 from dataclasses import dataclass
-from recal.terms import Term
+from recal.model.terms import Term
 
 
 @dataclass(frozen=True)
@@ -179,7 +179,7 @@ def test_calibrate_html_report(positions_csv, tmp_path, capsys):
 
 
 def test_cli_method_list_matches_the_engine():
-    from recal.calibrate import METHODS
+    from recal.solve.calibrate import METHODS
     from service.cli import calibrate as cli
 
     assert cli.METHODS == METHODS

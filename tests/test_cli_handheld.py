@@ -1,5 +1,5 @@
 """Acceptance (issue 18 item 5): a hand-held low-cost MEMS recording of our own making (raw
-counts, 100 Hz, ten poses held 5-10 s by hand; recal.session.simulate_handheld). Every pose is
+counts, 100 Hz, ten poses held 5-10 s by hand; recal.sim.session.simulate_handheld). Every pose is
 used for the accelerometer, the summary names what was rejected and why, and calibrate fits the
 accelerometer from all poses."""
 
@@ -10,8 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from recal.positions import Positions
-from recal.session import mems_truth, simulate_handheld
+from recal.model.positions import Positions
+from recal.sim.session import mems_truth, simulate_handheld
 from service.cli.main import main
 
 TRUTH_SEED = 11

@@ -92,7 +92,8 @@ def test_serve_help_lists_every_setting(capsys: pytest.CaptureFixture[str]) -> N
             assert " ".join(field.description.split()) in flat, name
     assert '\n  url = "loop://"\n' in out
     assert "\n  rate_hz = 1000.0  (> 0, <= 5000)\n" in out
-    assert '\n  format = "kvh-a"  (one of kvh-a, kvh-b, kvh-c)\n' in out
+    assert '\n  format = "kvh-a"  (one of kvh-a, kvh-b, kvh-c, csv)\n' in out
+    assert '\n  trigger = ["drift", "information"]  (any of drift, information, count)\n' in out
     assert "\n  token = unset\n" in out and "\n  use_slews = true\n" in out
 
 

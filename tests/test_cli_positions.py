@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from recal.positions import Positions
+from recal.model.positions import Positions
 from service.cli.main import main
 
 ACC = "xsens_static_poses_acc.txt"

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.ins_error import predict_static_error
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.nav.ins_error import predict_static_error
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.cli.main import main
 
 

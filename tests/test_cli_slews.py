@@ -6,10 +6,10 @@ import json
 
 import numpy as np
 
-from recal.coefficients import CoefficientSet
-from recal.session import axis_angle, simulate_session
-from recal.simulate import NoiseSpec
-from recal.slews import Slews
+from recal.detect.slews import Slews
+from recal.model.coefficients import CoefficientSet
+from recal.sim.session import axis_angle, simulate_session
+from recal.sim.simulate import NoiseSpec
 from service.cli.main import main
 
 ACC = "xsens_static_poses_acc.txt"

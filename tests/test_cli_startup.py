@@ -14,7 +14,7 @@ import pytest
 
 # drivers.registry (the --format choices) is light; the parsers and decoders are not.
 DRIVERS_HEAVY = ("drivers.bulk", "drivers.decoder", "drivers.csv_log", "drivers.reader")
-HEAVY = ("numpy", "scipy", "recal.calibrate", "recal.static", "recal.positions", "tqdm",
+HEAVY = ("numpy", "scipy", "recal.solve.calibrate", "recal.detect.static", "recal.model.positions", "tqdm",
          *DRIVERS_HEAVY)  # fmt: skip
 
 
@@ -46,8 +46,8 @@ def test_a_command_imports_only_what_it_needs(tmp_path):
     pos = tmp_path / "pos.csv"
     code = f"import service.cli.main as m\nassert m.main(['simulate', '-o', {str(pos)!r}]) == 0"
     loaded = modules_after(code)
-    assert "numpy" in loaded and "recal.simulate" in loaded
-    assert not {"scipy", "recal.calibrate", "recal.static"} & loaded
+    assert "numpy" in loaded and "recal.sim.simulate" in loaded
+    assert not {"scipy", "recal.solve.calibrate", "recal.detect.static"} & loaded
     # only the input-error base (drivers.errors, which recal.errors subclasses) and the light
     # format registry (the --format choices), no reader
     assert {m for m in loaded if m.startswith("drivers.")} <= {"drivers.errors", "drivers.registry"}
@@ -56,17 +56,29 @@ def test_a_command_imports_only_what_it_needs(tmp_path):
 @pytest.mark.parametrize(
     ("module", "constant", "source"),
     [
-        ("service.cli.simulate", "DESIGNS", "recal.simulate:DESIGNS"),
-        ("service.cli.simulate", "DEFAULT_ARW_DEG_RT_H", "recal.simulate:NoiseSpec.arw_deg_rt_h"),
-        ("service.cli.simulate", "DEFAULT_VRW_UG_RT_HZ", "recal.simulate:NoiseSpec.vrw_ug_rt_hz"),
-        ("service.cli.simulate", "DEFAULT_WINDOW_S", "recal.simulate:NoiseSpec.window_s"),
-        ("service.cli.simulate", "DEFAULT_SLEW_S", "recal.simulate:NoiseSpec.slew_s"),
-        ("service.cli.simulate", "DEFAULT_RATE_HZ", "recal.simulate:NoiseSpec.rate_hz"),
-        ("service.cli.simulate", "DEFAULT_TEMP_START_C", "recal.simulate:TemperatureSpec.start_c"),
+        ("service.cli.simulate", "DESIGNS", "recal.sim.simulate:DESIGNS"),
+        (
+            "service.cli.simulate",
+            "DEFAULT_ARW_DEG_RT_H",
+            "recal.sim.simulate:NoiseSpec.arw_deg_rt_h",
+        ),
+        (
+            "service.cli.simulate",
+            "DEFAULT_VRW_UG_RT_HZ",
+            "recal.sim.simulate:NoiseSpec.vrw_ug_rt_hz",
+        ),
+        ("service.cli.simulate", "DEFAULT_WINDOW_S", "recal.sim.simulate:NoiseSpec.window_s"),
+        ("service.cli.simulate", "DEFAULT_SLEW_S", "recal.sim.simulate:NoiseSpec.slew_s"),
+        ("service.cli.simulate", "DEFAULT_RATE_HZ", "recal.sim.simulate:NoiseSpec.rate_hz"),
+        (
+            "service.cli.simulate",
+            "DEFAULT_TEMP_START_C",
+            "recal.sim.simulate:TemperatureSpec.start_c",
+        ),
         (
             "service.cli.simulate",
             "DEFAULT_TEMP_SLOPE_C_PER_H",
-            "recal.simulate:TemperatureSpec.slope_c_per_h",
+            "recal.sim.simulate:TemperatureSpec.slope_c_per_h",
         ),
         ("service.cli.record", "DEFAULT_BAUD", "drivers.transport:DEFAULT_BAUD"),
     ],

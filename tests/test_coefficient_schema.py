@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recal.coefficient_schema import MIGRATIONS, SCHEMA, VERSION, schema_version, upgrade
-from recal.coefficients import CoefficientSet, read_coefficients
 from recal.errors import InputError, RecalInputError
+from recal.model.coefficient_schema import MIGRATIONS, SCHEMA, VERSION, schema_version, upgrade
+from recal.model.coefficients import CoefficientSet, read_coefficients
 from service.cli.main import main
 
 RELEASE_DB = Path(__file__).parent / "data" / "release_612b796.db"

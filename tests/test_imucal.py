@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recal.imucal import coefficients_from_imucal
-from recal.reference import normal_gravity_g
+from recal.model.imucal import coefficients_from_imucal
+from recal.model.reference import normal_gravity_g
 from service.cli.main import main
 
 COLUMNS = "gyro_x=gyr_x,gyro_y=gyr_y,gyro_z=gyr_z,accel_x=acc_x,accel_y=acc_y,accel_z=acc_z"

@@ -13,7 +13,7 @@ import pytest
 
 from drivers.errors import DriverInputError, InputError
 from recal.errors import RecalInputError
-from recal.plugins import load_plugin_source
+from recal.model.plugins import load_plugin_source
 from service.cli.common import open_input, read_text
 from service.cli.errors import CliInputError
 from service.cli.main import main
@@ -110,7 +110,7 @@ def test_open_input_permission_denied(tmp_path: Path) -> None:
         ("latin.py", b"# \xe9\nTERMS = []\n", "is not UTF-8 text"),
         ("raises.py", b"import no_such_module_here\n", "failed to load: ModuleNotFoundError"),
         ("exits.py", b"raise SystemExit(3)\n", "failed to load: SystemExit: 3"),
-        ("noterms.py", b"X = 1\n", "must define TERMS = [recal.terms.Term, ...]"),
+        ("noterms.py", b"X = 1\n", "must define TERMS = [recal.model.terms.Term, ...]"),
         ("missing.py", None, "does not exist"),
         ("folder.py", "dir", "is a directory, not a file"),
     ],
@@ -131,7 +131,7 @@ def test_bad_plugin_files_exit_2_with_one_line(
 def test_plugin_from_source_registers_its_terms() -> None:
     source = (
         "from dataclasses import dataclass\n"
-        "from recal.terms import Term\n"
+        "from recal.model.terms import Term\n"
         "@dataclass(frozen=True)\n"
         "class CrossBias(Term):\n"
         "    def nonlinear(self, p, x, ctx):\n"

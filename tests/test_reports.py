@@ -9,13 +9,14 @@ import re
 import numpy as np
 import pytest
 
-from recal.coefficients import CoefficientSet
-from recal.positions import Positions
-from recal.report_positions import RecordingEnvelope, TraceEnvelope, positions_html
-from recal.session import simulate_session
-from recal.simulate import TemperatureSpec, simulate_positions
-from recal.static import DetectorConfig, StaticDetector, estimate_noise_floor
-from recal.terms import catalogue_terms
+from recal.detect.floor import estimate_noise_floor
+from recal.detect.static import DetectorConfig, StaticDetector
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import Positions
+from recal.model.terms import catalogue_terms
+from recal.report.positions import RecordingEnvelope, TraceEnvelope, positions_html
+from recal.sim.session import simulate_session
+from recal.sim.simulate import TemperatureSpec, simulate_positions
 from service.capture_sim import kvh_like_truth
 from service.cli.main import main
 

@@ -4,14 +4,14 @@ FOG magnetic (Faraday) sensitivity: a bias proportional to the Earth's magnetic 
 axis, b_g,i += F_i B_i, with B the field in body axes. The field is fixed in the local frame
 (north, east, up components in gauss at the site), so per position it is
 B = B_N north + B_E east + B_U gravity_direction, from the attitude-free context the engine
-provides (recal.plugins): no attitude is needed.
+provides (recal.model.plugins): no attitude is needed.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from recal.terms import Term
+from recal.model.terms import Term
 
 #: Earth field at a mid-latitude northern site, gauss (north, east, up): 0.20 G horizontal,
 #: 0.45 G pointing down.

@@ -36,7 +36,7 @@ def _write(path: Path, header: list[str], columns: list[np.ndarray], fmt: str) -
 
 def accel_log() -> None:
     """12 poses, accelerometer only, the log's own column names."""
-    from recal.session import simulate_session
+    from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth
 
     s = simulate_session(kvh_like_truth(1), "random", 12, latitude_deg=50.0, seed=1,
@@ -46,7 +46,7 @@ def accel_log() -> None:
 
 def log_without_time() -> None:
     """8 poses, both triads and temperature, standard names, no time column (100 Hz)."""
-    from recal.session import simulate_session
+    from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth
 
     s = simulate_session(kvh_like_truth(2), "random", 8, latitude_deg=50.0, seed=2,
@@ -58,9 +58,9 @@ def log_without_time() -> None:
 
 def magnetic_positions() -> None:
     """Window means of a FOG with the Faraday bias that faraday_plugin.py models."""
-    from recal.coefficients import CoefficientSet
-    from recal.plugins import hidden_plugin
-    from recal.simulate import design_orientations, simulate_positions
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.plugins import hidden_plugin
+    from recal.sim.simulate import design_orientations, simulate_positions
     from service.cli.common import load_plugin
 
     (term,) = load_plugin(str(HERE / "faraday_plugin.py"))

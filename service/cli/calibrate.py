@@ -13,9 +13,9 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from recal.calibrate import CalibrationOptions, CalibrationResult
+    from recal.solve.calibrate import CalibrationOptions, CalibrationResult
 
-#: recal.calibrate.METHODS, repeated here to keep parser construction light (a test checks it)
+#: recal.solve.calibrate.METHODS, repeated here to keep parser construction light (a test checks it)
 METHODS = ("lm", "nafsa", "safsa", "oafsa")
 
 
@@ -60,7 +60,7 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
         metavar="FILE.py",
         action="append",
         default=[],
-        help="Python file defining TERMS = [...] (recal.terms.Term subclasses)",
+        help="Python file defining TERMS = [...] (recal.model.terms.Term subclasses)",
     )
     p.add_argument(
         "--paper",
@@ -102,10 +102,10 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
 def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOptions:
     """The options of the command line; ``positions`` (loaded when None and a slews side file
     exists) are what the side file is checked against."""
-    from recal.calibrate import CalibrationOptions
     from recal.errors import RecalInputError
-    from recal.swarm import SwarmConfig
-    from recal.terms import catalogue_terms
+    from recal.model.terms import catalogue_terms
+    from recal.solve.calibrate import CalibrationOptions
+    from recal.solve.swarm import SwarmConfig
     from service.cli.common import load_coefficients, load_plugin, parse_effects
 
     plugin_terms = [t for path in args.plugin for t in load_plugin(path)]
@@ -123,7 +123,7 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
         raise RecalInputError("--fish must be at least 2 and --iterations at least 1")
     swarm = None
     if args.fish != 50 or args.iterations != 60:
-        from recal.mcs import solver_for
+        from recal.solve.mcs import solver_for
 
         cfg_cls = solver_for(args.method)[1] if args.method != "lm" else SwarmConfig
         extra = {"cf_mode": "literal"} if args.paper and args.method == "nafsa" else {}
@@ -165,7 +165,7 @@ def _check_prior_plugins(prior, terms: dict, path: str) -> None:
     """A prior holding a plugin effect needs that plugin: without it the effect would be
     dropped silently."""
     from recal.errors import RecalInputError
-    from recal.plugins import builtin_names
+    from recal.model.plugins import builtin_names
 
     known = builtin_names() | set(terms)
     missing = [n for n in prior.values if n not in known]
@@ -178,13 +178,13 @@ def _check_prior_plugins(prior, terms: dict, path: str) -> None:
 
 
 def load_slews(args: argparse.Namespace, positions=None):
-    """The slews side file of the positions (recal.slews.Slews), or None (--no-slews, absent,
+    """The slews side file of the positions (recal.detect.slews.Slews), or None (--no-slews, absent,
     or written for another positions file: ignored with one line on stderr saying why, an
     error with an explicit --slews). Nothing is announced as used here: whether the fit uses
     them is known only after it (:func:`announce_slews`)."""
 
+    from recal.detect.slews import Slews
     from recal.errors import RecalInputError
-    from recal.slews import Slews
     from service.cli.common import load_positions, read_bytes
     from service.cli.positions import slews_path
 
@@ -248,12 +248,12 @@ def announce_slews(args: argparse.Namespace, slews, used: bool, notes: list[str]
 
 
 def load_known_rotations(args: argparse.Namespace, slews):
-    """``--known-rotations FILE`` (recal.slews.KnownRotations), or None."""
+    """``--known-rotations FILE`` (recal.detect.slews.KnownRotations), or None."""
     path = getattr(args, "known_rotations", None)
     if path is None:
         return None
+    from recal.detect.slews import KnownRotations
     from recal.errors import RecalInputError
-    from recal.slews import KnownRotations
     from service.cli.common import read_text
 
     if slews is None:
@@ -305,7 +305,7 @@ def run_calibration(args: argparse.Namespace) -> CalibrationResult:
 
 
 def _run_calibration(args: argparse.Namespace) -> tuple[CalibrationResult, CalibrationOptions]:
-    from recal.calibrate import calibrate
+    from recal.solve.calibrate import calibrate
     from service.cli.common import load_positions, progress_bar
 
     positions = load_positions(args.positions)
@@ -330,7 +330,7 @@ def _run_calibration(args: argparse.Namespace) -> tuple[CalibrationResult, Calib
 
 
 def run(args: argparse.Namespace) -> int:
-    from recal.diagnose import effects_check
+    from recal.diagnose.effects import effects_check
     from service.cli.common import atomic_write, print_json
 
     result, options = _run_calibration(args)
@@ -349,14 +349,14 @@ def run(args: argparse.Namespace) -> int:
     if check is not None:
         doc["effects_check"] = check
     # the full covariance beside the 1-sigma values: recal drift whitens with it (docs/drift.md)
-    from recal.drift import covariance_to_json
+    from recal.diagnose.drift import covariance_to_json
 
     doc["covariance"] = covariance_to_json(result.layout.names, result.covariance)
     if args.output:
         coefficients = {**doc["coefficients"], "covariance": doc["covariance"]}
         atomic_write(args.output, json.dumps(coefficients, indent=2) + "\n")
     if args.report:
-        from recal.report import calibration_html
+        from recal.report.html import calibration_html
 
         atomic_write(args.report, calibration_html(result, f"recal calibrate {args.positions}"))
         print(f"recal calibrate: wrote the report to {args.report}", file=sys.stderr)

@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 if TYPE_CHECKING:
-    from recal.coefficients import CoefficientSet
-    from recal.positions import Positions
-    from recal.terms import Term
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.positions import Positions
+    from recal.model.terms import Term
 
 
 def _input_error(message: str) -> Exception:
@@ -97,23 +97,23 @@ def _umask() -> int:
 
 
 def load_positions(path: str) -> Positions:
-    from recal.positions import Positions
+    from recal.model.positions import Positions
 
     return Positions.from_csv_text(read_text(path, "positions file"), source=str(path))
 
 
 def load_coefficients(path: str, terms: dict[str, Term] | None = None) -> CoefficientSet:
     """A coefficients file (or a ``calibrate --json`` output): opened here, read by
-    recal.coefficients.read_coefficients (schema checked, older versions migrated)."""
-    from recal.coefficients import read_coefficients
+    recal.model.coefficients.read_coefficients (schema checked, older versions migrated)."""
+    from recal.model.coefficients import read_coefficients
 
     return read_coefficients(read_text(path, "coefficients file"), terms, source=str(path))
 
 
 def load_plugin(path: str) -> list[Term]:
-    """A user's Python file defining ``TERMS = [Term, ...]`` (recal.plugins.load_plugin_source):
+    """A user's Python file defining ``TERMS = [Term, ...]`` (recal.model.plugins.load_plugin_source):
     opened here, a mistake in it is an input error."""
-    from recal.plugins import load_plugin_source
+    from recal.model.plugins import load_plugin_source
 
     p = Path(path)
     if p.suffix != ".py":

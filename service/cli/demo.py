@@ -41,8 +41,8 @@ def _say(msg: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from recal.errors import RecalInputError
-    from recal.session import simulate_session
-    from recal.simulate import TemperatureSpec
+    from recal.sim.session import simulate_session
+    from recal.sim.simulate import TemperatureSpec
     from service.capture_sim import kvh_like_truth, session_to_kvh
     from service.cli.common import atomic_write
     from service.config import (

@@ -10,7 +10,7 @@ from service.cli.calibrate import add_calibration_arguments, announce_slews, opt
 from service.cli.common import atomic_write, load_positions, parse_effects, print_json
 
 if TYPE_CHECKING:
-    from recal.diagnose import Diagnosis
+    from recal.diagnose.effects import Diagnosis
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -33,8 +33,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from recal.diagnose import diagnose
-    from recal.report import diagnosis_html
+    from recal.diagnose.effects import diagnose
+    from recal.report.html import diagnosis_html
 
     positions = load_positions(args.positions)
     options = options_from_args(args, positions)

@@ -1,6 +1,6 @@
 """``recal drift``: have the coefficients drifted? A sequential test on a positions file.
 
-Each row of POSITIONS.csv is a new static window; the test (:mod:`recal.drift`) checks, window by
+Each row of POSITIONS.csv is a new static window; the test (:mod:`recal.diagnose.drift`) checks, window by
 window in row order, whether the gyro norm, accelerometer norm and their dot product have moved
 away from what the accepted coefficients (``--coefficients``) predict, beyond each window's own
 noise and the coefficients' own uncertainty. It prints the statistic per window, the threshold
@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from recal.drift import DriftConfig, drift_inputs, drift_test
+    from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test
     from recal.errors import RecalInputError
     from service.cli.common import atomic_write, load_positions, print_json
 
@@ -96,10 +96,10 @@ def run(args: argparse.Namespace) -> int:
 def _load(path: str):
     """A coefficients file, or a ``calibrate --json`` output (its coefficients + uncertainty),
     and its ``"covariance"`` block (names + matrix) when it has one."""
-    from recal.coefficient_schema import coefficients_block, parse_json
-    from recal.coefficients import CoefficientSet
     from recal.errors import RecalInputError
-    from recal.terms import catalogue_terms
+    from recal.model.coefficient_schema import coefficients_block, parse_json
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.terms import catalogue_terms
     from service.cli.common import read_text
 
     data = coefficients_block(parse_json(read_text(path, "coefficients file"), path), path)
@@ -179,7 +179,7 @@ def report_html(out: dict[str, Any], title: str) -> str:
 
     import numpy as np
 
-    from recal.plots import AFTER, BEFORE, figure_svg, html_page, new_figure, time_unit
+    from recal.report.plots import AFTER, BEFORE, figure_svg, html_page, new_figure, time_unit
 
     stat = np.array([w["statistic"] for w in out["windows"]])
     if all("time_s" in w for w in out["windows"]):

@@ -1,10 +1,10 @@
 """``recal navigate``: free-inertial navigation of a recording with one or more coefficient sets.
 
 The recording is streamed (:func:`service.cli.recording.open_recording`) and averaged down to
-``--nav-rate`` (default 10 Hz, :class:`recal.navigation.Decimator`), corrected with each
+``--nav-rate`` (default 10 Hz, :class:`recal.nav.navigation.Decimator`), corrected with each
 ``--coefficients`` set, aligned on its first ``--align`` seconds (levelling + gyrocompassing,
-:mod:`recal.alignment`) unless ``--attitude`` gives the initial attitude, and navigated
-(:func:`recal.navigation.navigate`, all sets in one loop). The error is against the start
+:mod:`recal.nav.alignment`) unless ``--attitude`` gives the initial attitude, and navigated
+(:func:`recal.nav.navigation.navigate`, all sets in one loop). The error is against the start
 position (a static recording) or against ``--truth TRUTH.csv`` (columns time_s, latitude_deg,
 longitude_deg on the recording's clock, as ``recal simulate --trajectory voyage`` writes).
 
@@ -19,7 +19,7 @@ import sys
 from typing import Any
 
 DEFAULT_ALIGN_S = 300.0
-DEFAULT_NAV_RATE_HZ = 10.0  # recal.navigation.DEFAULT_RATE_HZ (no numpy to build the parser)
+DEFAULT_NAV_RATE_HZ = 10.0  # recal.nav.navigation.DEFAULT_RATE_HZ (no numpy to build the parser)
 DEFAULT_STEP_S = 1.0
 _PROGRESS_MIN_BYTES = 16 << 20
 _CURVE_POINTS = 1500  # error-curve points kept in the JSON output
@@ -38,9 +38,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="RECORDING", help="as for `recal positions`")
     from drivers.registry import input_format_names
 
-    p.add_argument(
-        "--format", required=True, choices=input_format_names(), help="input format"
-    )
+    p.add_argument("--format", required=True, choices=input_format_names(), help="input format")
     p.add_argument(
         "--rate", type=float, metavar="HZ", help="sample rate (as for `recal positions`)"
     )
@@ -93,8 +91,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _check_args(args: argparse.Namespace) -> tuple[float, float, float] | None:
-    from recal.alignment import parse_attitude
     from recal.errors import RecalInputError
+    from recal.nav.alignment import parse_attitude
 
     if not -90.0 <= args.latitude <= 90.0:
         raise RecalInputError(f"--latitude {args.latitude} is outside [-90, 90] deg")
@@ -114,7 +112,7 @@ def _read(args: argparse.Namespace, recording: Any) -> Any:
     import numpy as np
 
     from recal.errors import RecalInputError
-    from recal.navigation import Decimator, decimation_factor
+    from recal.nav.navigation import Decimator, decimation_factor
     from service.cli.common import progress_bar
 
     if set(recording.triads) != {"gyro", "accel"}:
@@ -175,10 +173,11 @@ def _read_truth(path: str) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from recal.alignment import align_static
     from recal.errors import RecalInputError
-    from recal.ins_error import schuler_amplitude_m
-    from recal.navigation import (
+    from recal.model.terms import catalogue_terms
+    from recal.nav.alignment import align_static
+    from recal.nav.ins_error import schuler_amplitude_m
+    from recal.nav.navigation import (
         NMI_M,
         attitude_matrix,
         correct_outputs,
@@ -186,7 +185,6 @@ def run(args: argparse.Namespace) -> int:
         navigate,
         schuler_period_s,
     )
-    from recal.terms import catalogue_terms
     from service.cli.common import atomic_write, load_coefficients, print_json, progress_bar
     from service.cli.recording import open_recording
 
@@ -306,7 +304,7 @@ def run(args: argparse.Namespace) -> int:
         "notes": notes,
     }
     if args.report:
-        from recal.report_navigation import navigation_html
+        from recal.report.navigation import navigation_html
 
         curves = [(runs[i]["coefficients"], t, north[i], east[i]) for i in order]
         page = navigation_html(

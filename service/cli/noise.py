@@ -2,8 +2,8 @@
 
 The recording is read as by ``recal positions`` (same input and detector options, shared from
 :mod:`service.cli.positions`): a first pass learns the noise floor, a second finds the still
-stretches (:mod:`recal.static`), a third keeps the samples inside them. Their pooled overlapping
-Allan deviation (:mod:`recal.noise`) gives per axis the white noise (angle random walk of a
+stretches (:mod:`recal.detect.static`), a third keeps the samples inside them. Their pooled overlapping
+Allan deviation (:mod:`recal.detect.noise`) gives per axis the white noise (angle random walk of a
 gyro, velocity random walk of an accelerometer), the bias instability and the correlation time
 of a fitted white + Gauss-Markov model; ``--report`` plots the Allan deviations with their
 confidence band and the model.
@@ -173,7 +173,7 @@ def summarize(segments, rate_hz: float, triads, units) -> dict[str, Any]:
     """The per-axis summary and the curves (for the report) of the still samples."""
     import numpy as np
 
-    from recal import noise
+    from recal.detect import noise
     from recal.errors import RecalInputError
 
     if not segments:
@@ -242,7 +242,7 @@ def report_html(result: dict[str, Any], title: str) -> str:
     """A self-contained page: per axis, the Allan deviation with its 1-sigma band and the fit."""
     import html
 
-    from recal.plots import AFTER, BEFORE, NOISE, figure_svg, html_page, new_figure
+    from recal.report.plots import AFTER, BEFORE, NOISE, figure_svg, html_page, new_figure
 
     parts = ['<pre style="white-space:pre-wrap">' + html.escape(text_summary(result)) + "</pre>"]
     for name, tau, adev, lo, hi, model, summary in result["_plots"]:

@@ -4,7 +4,7 @@ Inputs (:mod:`service.cli.recording`, all streamed in chunks: memory does not gr
 recording's length): a KVH capture (``--format kvh-a|kvh-b|kvh-c``, decoded by
 ``drivers.StreamDecoder``; gyro in deg/h, accel in g), an Xsens text pair (``--format
 xsens-text``: the acc file and the gyro file, raw counts) or a CSV log (``--format csv``,
-docs/reference.md#csv, output units). The detector is ``recal.static``; the CSV columns are
+docs/reference.md#csv, output units). The detector is ``recal.detect.static``; the CSV columns are
 docs/reference.md#positions plus ``frames_lost``, ``frames_invalid`` and ``gyro_still``
 (0 for a pose kept for the accelerometer only: the gyro trembled, docs/static.md
 "Per-triad stillness"). The
@@ -12,7 +12,7 @@ summary on stderr counts the poses (still stretches of the accelerometer) and sa
 rejected stretch was rejected.
 
 Beside the CSV, a third pass keeps the gyro samples of each slew (the motion between two
-consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal.slews), which
+consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal.detect.slews), which
 ``recal calibrate`` uses for the slew invariant. A slew with lost or invalid frames or a
 saturated gyro sample is dropped and counted; its windows stay in the CSV.
 
@@ -30,7 +30,7 @@ from typing import Any
 #: Format flags add_kvh_unit_options adds (with their choices), not add_input_options.
 KVH_UNIT_FLAGS = ("--gyro-output", "--gyro-units", "--temp-units")
 _PROGRESS_MIN_BYTES = 16 << 20  # below this a bar would only flicker
-#: Frames per detector feed, counted from the first frame: recal.static.detect_static's slices,
+#: Frames per detector feed, counted from the first frame: recal.detect.static.detect_static's slices,
 #: so the stream gives the bulk path's windows to the last bit (any chunking agrees to 1e-15).
 DETECTOR_BLOCK = 1 << 16
 
@@ -205,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         floor = _learn_noise_floor(recording, args)
     envelope = None
     if report_path:
-        from recal.report_positions import RecordingEnvelope
+        from recal.report.positions import RecordingEnvelope
 
         envelope = RecordingEnvelope()  # bounded: a few thousand buckets, however long
     windows, report = _detect(recording, _config(args, recording, floor), envelope)
@@ -224,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"recal positions: {line}", file=sys.stderr)
     positions = _write(out, windows, recording.triads)
     if _units(args.format) == {"gyro": "deg/h", "accel": "g"}:  # Earth rate, gravity check them
-        from recal.plausibility import check_units
+        from recal.detect.plausibility import check_units
 
         units = "--gyro-output / --gyro-units"
         for line in check_units(positions).problems("--rate", report.sample_rate_hz or 0.0, units):
@@ -270,8 +270,8 @@ def slews_path(positions: Path | str) -> Path:
 
 
 def _write_slews(path: Path, recording, windows, rate_hz: float | None) -> None:
-    """Pass 3: the gyro samples between consecutive windows, as recal.slews increments."""
-    from recal.slews import SlewCollector
+    """Pass 3: the gyro samples between consecutive windows, as recal.detect.slews increments."""
+    from recal.detect.slews import SlewCollector
     from service.cli.common import atomic_write
 
     if not rate_hz:
@@ -299,8 +299,8 @@ def _has_thresholds(args: argparse.Namespace) -> bool:
 
 
 def _config(args: argparse.Namespace, recording, floor):
-    """The detector's settings: what the user gave; recal.static's defaults for the rest."""
-    from recal.static import DetectorConfig
+    """The detector's settings: what the user gave; recal.detect.static's defaults for the rest."""
+    from recal.detect.static import DetectorConfig
 
     given = {
         "window_s": args.window,
@@ -319,8 +319,8 @@ def _config(args: argparse.Namespace, recording, floor):
 
 
 def _learn_noise_floor(recording, args: argparse.Namespace):
-    """Pass 1: the moving-variance floor of the whole recording (recal.static)."""
-    from recal.static import NoiseFloorEstimator
+    """Pass 1: the moving-variance floor of the whole recording (recal.detect.static)."""
+    from recal.detect.floor import NoiseFloorEstimator
 
     given = {"window_s": args.window, "sample_rate_hz": recording.sample_rate_hz}
     estimator = NoiseFloorEstimator(**{k: v for k, v in given.items() if v is not None})
@@ -333,7 +333,7 @@ def _learn_noise_floor(recording, args: argparse.Namespace):
 def _detect(recording, config, envelope=None):
     """Pass 2: stream the recording through the incremental detector (and into the report's
     envelope when one is given)."""
-    from recal.static import StaticDetector
+    from recal.detect.static import StaticDetector
 
     detector = StaticDetector(config, on_traces=None if envelope is None else envelope.on_traces)
     windows = []
@@ -345,8 +345,8 @@ def _detect(recording, config, envelope=None):
 
 
 def _write_report(path: Path, envelope, report, windows, recording, floor, args) -> None:
-    """The HTML report of the detection (recal.report_positions), atomically."""
-    from recal.report_positions import positions_html
+    """The HTML report of the detection (recal.report.positions), atomically."""
+    from recal.report.positions import positions_html
     from service.cli.common import atomic_write
 
     names = " ".join(Path(p).name for p in args.inputs)
@@ -373,9 +373,9 @@ def _units(fmt: str) -> dict[str, str]:
 
 def _write(out: Path, windows, triads: tuple[str, ...]) -> Any:
     """The positions CSV, atomically (columns of a triad the input lacks are left out); returns
-    the :class:`recal.positions.Positions` written."""
-    from recal.positions import Positions
-    from recal.static import windows_to_columns
+    the :class:`recal.model.positions.Positions` written."""
+    from recal.detect.windows import windows_to_columns
+    from recal.model.positions import Positions
     from service.cli.common import atomic_write
 
     missing = tuple(f"{s}_" for s in ("gyro", "accel") if s not in triads)

@@ -5,7 +5,7 @@
 
 ``NEW.json`` is a ``recal calibrate --json`` output (coefficients and 1-sigma uncertainties) or a
 coefficients file (section 5 layout; then only the change from ``--from`` can be predicted).
-The linear psi-angle error model of :mod:`recal.ins_error` gives, at the site's latitude and
+The linear psi-angle error model of :mod:`recal.nav.ins_error` gives, at the site's latitude and
 the IMU's attitude (default level, x north): the 1-sigma horizontal error after ``--hours`` that
 the new set's uncertainty allows (independent 1-sigmas: the file carries no covariance), and
 with ``--from`` the error the old set leaves if the new one is right ("loading B instead of A
@@ -56,9 +56,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def _load(path: str) -> tuple[Any, dict[str, Any] | None]:
     """(CoefficientSet, the calibrate JSON's uncertainty section or None)."""
-    from recal.coefficient_schema import parse_json
-    from recal.coefficients import read_coefficients
     from recal.errors import RecalInputError
+    from recal.model.coefficient_schema import parse_json
+    from recal.model.coefficients import read_coefficients
     from service.cli.common import read_text
 
     data = parse_json(read_text(path, "coefficients file"), path)
@@ -71,9 +71,9 @@ def _load(path: str) -> tuple[Any, dict[str, Any] | None]:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from recal.alignment import parse_attitude
     from recal.errors import RecalInputError
-    from recal.ins_error import (
+    from recal.nav.alignment import parse_attitude
+    from recal.nav.ins_error import (
         SEED_PARAMETERS,
         SEED_TERMS,
         complete_seed_set,
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         seed_sigma,
         sigma_from_doc,
     )
-    from recal.navigation import NMI_M
+    from recal.nav.navigation import NMI_M
 
     if not -90.0 <= args.latitude <= 90.0:
         raise RecalInputError(f"--latitude {args.latitude} is outside [-90, 90] deg")

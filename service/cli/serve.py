@@ -98,7 +98,13 @@ def _allowed(info: Any) -> str:
     import types
     import typing
 
+    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+    if callable(extra.get("choices")):  # choices known at run time (a registry)
+        return "one of " + ", ".join(extra["choices"]())
     ann = info.annotation
+    many = typing.get_origin(ann) is list
+    if many:  # a list of choices
+        ann = typing.get_args(ann)[0]
     union = typing.get_origin(ann) in (typing.Union, types.UnionType)
     parts = typing.get_args(ann) if union else (ann,)
     choices = [
@@ -108,7 +114,7 @@ def _allowed(info: Any) -> str:
         for arg in typing.get_args(part)
     ]
     if choices:
-        return "one of " + ", ".join(choices)
+        return ("any of " if many else "one of ") + ", ".join(choices)
     symbols = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
     return ", ".join(
         f"{symbols[name]} {getattr(m, name):g}"

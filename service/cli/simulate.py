@@ -1,7 +1,7 @@
 """``recal simulate``: write a positions CSV, or a byte-level capture, of a simulated session.
 
-Without ``--capture`` the window means are drawn directly (:mod:`recal.simulate`). With
-``--capture OUT.bin`` every sample is simulated (:mod:`recal.session`: holds joined by slews) and
+Without ``--capture`` the window means are drawn directly (:mod:`recal.sim.simulate`). With
+``--capture OUT.bin`` every sample is simulated (:mod:`recal.sim.session`: holds joined by slews) and
 written as the frames a KVH sends (:mod:`service.capture_sim`), optionally damaged; ``-o`` then
 writes the true window means of the same session's holds.
 """
@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from recal.coefficients import CoefficientSet
-    from recal.positions import Positions
-    from recal.simulate import NoiseSpec, TemperatureSpec
-    from recal.terms import Term
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.positions import Positions
+    from recal.model.terms import Term
+    from recal.sim.simulate import NoiseSpec, TemperatureSpec
 
-#: recal.simulate.DESIGNS and the NoiseSpec / TemperatureSpec defaults, repeated here so that
+#: recal.sim.simulate.DESIGNS and the NoiseSpec / TemperatureSpec defaults, repeated here so that
 #: building the parser imports no numpy (a test checks they match).
 DESIGNS = ("24", "random", "vessel")
 DEFAULT_ARW_DEG_RT_H = 0.0005
@@ -205,10 +205,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from recal.coefficients import CoefficientSet
     from recal.errors import RecalInputError
-    from recal.simulate import NoiseSpec, TemperatureSpec, simulate_positions
-    from recal.terms import catalogue_terms
+    from recal.model.coefficients import CoefficientSet
+    from recal.model.terms import catalogue_terms
+    from recal.sim.simulate import NoiseSpec, TemperatureSpec, simulate_positions
     from service.cli.common import atomic_write, load_coefficients, parse_effects
 
     if args.rate is None:
@@ -316,7 +316,7 @@ def _write_capture(
 
     from drivers import DecoderConfig
     from recal.errors import RecalInputError
-    from recal.session import session_positions, simulate_session
+    from recal.sim.session import session_positions, simulate_session
     from service.capture_sim import Damage, session_to_kvh
     from service.cli.common import atomic_write
 
@@ -367,11 +367,11 @@ def _run_trajectory(args: argparse.Namespace) -> int:
     """``--trajectory``: a vessel recording for ``recal navigate`` and its true track."""
     import numpy as np
 
-    from recal.alignment import parse_attitude
     from recal.errors import RecalInputError
-    from recal.simulate import NoiseSpec
-    from recal.terms import catalogue_terms
-    from recal.trajectory import VoyageSpec, simulate_voyage
+    from recal.model.terms import catalogue_terms
+    from recal.nav.alignment import parse_attitude
+    from recal.nav.trajectory import VoyageSpec, simulate_voyage
+    from recal.sim.simulate import NoiseSpec
     from service.cli.common import atomic_write, load_coefficients
 
     if args.capture is None and args.recording is None:

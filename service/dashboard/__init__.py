@@ -131,7 +131,7 @@ class _AdviceCache:
 
     def get(self, record: CalibrationRecord, table: Any, ids: list[int]) -> Any:
         from recal.errors import RecalInputError
-        from recal.positions import Positions
+        from recal.model.positions import Positions
         from service.dashboard.coverage import orientation_advice
 
         with self._lock:

@@ -2,7 +2,7 @@
 
 Where gravity points in the body frame comes from each window's mean accelerometer output (the
 specific force at rest points up, so gravity is its opposite). The advice reuses the engine's own
-observability analysis (:func:`recal.observability.analyze`): the current version's held or
+observability analysis (:func:`recal.solve.observability.analyze`): the current version's held or
 weakly seen coefficients are re-judged with one more window in each candidate orientation (a
 body axis pointing down), predicted from the current coefficients by the error model itself.
 Nothing here decides observability by its own numerics.
@@ -15,16 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from recal.calibrate import build_models
-from recal.coefficients import CoefficientSet
-from recal.model import ParameterLayout
-from recal.observability import analyze
-from recal.positions import Positions
-from recal.problem import Problem
-from recal.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import ParameterLayout
+from recal.model.positions import Positions
+from recal.model.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.solve.calibrate import build_models
+from recal.solve.observability import analyze
+from recal.solve.problem import Problem
 
 #: A parameter counts as fully seen above this share of it in the observable subspace
-#: (the share ``recal.observability`` reports as ``partially_held`` below it).
+#: (the share ``recal.solve.observability`` reports as ``partially_held`` below it).
 SEEN_SHARE = 0.99
 #: Candidate windows: gravity along each body axis, both ways.
 CANDIDATES: tuple[tuple[str, tuple[float, float, float]], ...] = tuple(

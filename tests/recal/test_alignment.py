@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from recal.alignment import align_static, parse_attitude
-from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.navigation import correct_outputs, decimate
-from recal.simulate import NoiseSpec
-from recal.trajectory import Leg, VoyageSpec, simulate_voyage
+from recal.model.coefficients import CoefficientSet
+from recal.nav.alignment import align_static, parse_attitude
+from recal.nav.navigation import correct_outputs, decimate
+from recal.nav.trajectory import Leg, VoyageSpec, simulate_voyage
+from recal.sim.simulate import NoiseSpec
 
 LAT = 45.0
 

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.model import Model, ParameterLayout
-from recal.simulate import NoiseSpec, TemperatureSpec, simulate_positions
-from recal.terms import MISALIGNMENT_NAMES, catalogue_terms
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import Model, ParameterLayout
+from recal.model.terms import MISALIGNMENT_NAMES, catalogue_terms
+from recal.sim.simulate import NoiseSpec, TemperatureSpec, simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 
 SYM_PAIRS = [("Exz", "Eyz"), ("Exy", "Ezy"), ("Eyx", "Ezx")]
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.session import session_positions, session_slews, simulate_session
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.session import session_positions, session_slews, simulate_session
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 
 SEEDS = 40
 #: The prior file's 1-sigma (scale factors relative)

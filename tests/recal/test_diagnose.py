@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions
-from recal.coefficients import CoefficientSet
-from recal.diagnose import diagnose
-from recal.report import diagnosis_html
-from recal.simulate import TemperatureSpec, simulate_positions
-from recal.terms import catalogue_terms
+from recal.diagnose.effects import diagnose
+from recal.model.coefficients import CoefficientSet
+from recal.model.terms import catalogue_terms
+from recal.report.html import diagnosis_html
+from recal.sim.simulate import TemperatureSpec, simulate_positions
+from recal.solve.calibrate import CalibrationOptions
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 

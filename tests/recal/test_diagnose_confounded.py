@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.diagnose import CORE_SHIFT_SIGMA, _fit, diagnose, effects_check, heldout_chi2_red
-from recal.plugins import hidden_plugin
-from recal.report import diagnosis_html
-from recal.simulate import TemperatureSpec, design_orientations, simulate_positions
-from recal.terms import catalogue_terms
+from recal.diagnose.effects import CORE_SHIFT_SIGMA, _fit, diagnose, effects_check, heldout_chi2_red
+from recal.model.coefficients import CoefficientSet
+from recal.model.plugins import hidden_plugin
+from recal.model.terms import catalogue_terms
+from recal.report.html import diagnosis_html
+from recal.sim.simulate import TemperatureSpec, design_orientations, simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 from service.gate import GateConfig, gate

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions
-from recal.coefficients import CoefficientSet
-from recal.diagnose import diagnose
-from recal.plugins import hidden_plugin
-from recal.report import diagnosis_html
-from recal.simulate import TemperatureSpec, design_orientations, simulate_positions
-from recal.terms import catalogue_terms
+from recal.diagnose.effects import diagnose
+from recal.model.coefficients import CoefficientSet
+from recal.model.plugins import hidden_plugin
+from recal.model.terms import catalogue_terms
+from recal.report.html import diagnosis_html
+from recal.sim.simulate import TemperatureSpec, design_orientations, simulate_positions
+from recal.solve.calibrate import CalibrationOptions
 from service.cli.common import load_plugin
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
@@ -149,9 +149,9 @@ def test_noise_correlation_matches_simulated_window_noise():
     """The gyro norm and the dot product of one window share its gyro noise: the predicted
     correlation of their whitened residuals matches simulated noise (fixed 24-position
     orientations, 150 noise draws, evaluated at the truth)."""
-    from recal.diagnose import noise_correlation
-    from recal.model import ParameterLayout
-    from recal.problem import Problem
+    from recal.diagnose.effects import noise_correlation
+    from recal.model.error_model import ParameterLayout
+    from recal.solve.problem import Problem
 
     truth = CoefficientSet.seed_truth()
     runs = []

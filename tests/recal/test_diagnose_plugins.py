@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.diagnose import diagnose
+from recal.diagnose.effects import diagnose
 from recal.errors import RecalInputError
-from recal.plugins import hidden_plugin, site_context, true_site_context
-from recal.report import diagnosis_html
-from recal.simulate import design_orientations, simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.model.plugins import hidden_plugin, site_context, true_site_context
+from recal.report.html import diagnosis_html
+from recal.sim.simulate import design_orientations, simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.cli.common import load_plugin
 from service.cli.main import main
 
@@ -109,7 +109,7 @@ BAD_PLUGINS = {
 BAD_HEADER = """
 from dataclasses import dataclass
 import numpy as np
-from recal.terms import Term
+from recal.model.terms import Term
 
 @dataclass(frozen=True)
 class Bias1(Term):

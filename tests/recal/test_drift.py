@@ -6,9 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.drift import (
+from recal.diagnose.drift import (
     DriftConfig,
     DriftInputs,
     describe_change,
@@ -18,8 +16,10 @@ from recal.drift import (
     threshold,
 )
 from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import Positions
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 
 SEEDS = range(20)
 LAT = 45.0
@@ -194,7 +194,7 @@ def test_file_uncertainty_is_a_diagonal_covariance(fits):
 
 def test_file_covariance_block_round_trips(fits):
     """calibrate -o writes the covariance by name; read back in another order it is the same."""
-    from recal.drift import covariance_to_json
+    from recal.diagnose.drift import covariance_to_json
 
     fit = fits[0]
     names = fit.layout.names
@@ -228,10 +228,10 @@ def test_missing_triad_and_noise_are_input_errors(fits):
 
 
 def test_noise_covariance_matches_the_problem_sigma(fits):
-    """The per-window noise of the norms equals recal.problem's propagated sigma (within its
+    """The per-window noise of the norms equals recal.solve.problem's propagated sigma (within its
     per-axis gain approximation, a few %: here the inverse model's full Jacobian); the dot
     product shares the gyro's and accel's noise with them (correlated)."""
-    from recal.problem import Problem
+    from recal.solve.problem import Problem
 
     fit = fits[0]
     pos = new_windows(0)

@@ -6,12 +6,12 @@ import re
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.mcs import run_mcs
-from recal.positions import GYRO_SEM_COLUMNS, GYRO_STD_COLUMNS, Positions
-from recal.simulate import NoiseSpec, simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import GYRO_SEM_COLUMNS, GYRO_STD_COLUMNS, Positions
+from recal.sim.simulate import NoiseSpec, simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.mcs import run_mcs
 
 
 def _without(pos: Positions, suffix: str) -> Positions:

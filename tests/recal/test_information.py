@@ -1,4 +1,4 @@
-"""The information trigger's expected gain (issue 20, recal.information): the Kalman update of
+"""The information trigger's expected gain (issue 20, recal.diagnose.information): the Kalman update of
 the accepted coefficients' covariance by new windows, checked against the information form, the
 repeated-design law 1 - sqrt(N / (N + n)), held coefficients made visible, and slews."""
 
@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
+from recal.diagnose.information import information_gain, posterior_covariance
 from recal.errors import RecalInputError
-from recal.information import information_gain, posterior_covariance
-from recal.session import session_positions, session_slews, simulate_session
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.session import session_positions, session_slews, simulate_session
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.capture_sim import kvh_like_truth
 
 LAT = 45.0
@@ -113,7 +113,7 @@ def test_no_windows_or_no_noise_is_an_input_error(fit24) -> None:
     with pytest.raises(RecalInputError, match="no new windows"):
         information_gain(new.subset(np.arange(0)), fit24.coefficients, fit24.covariance, LAT)
     bare = {k: v for k, v in new.columns.items() if not k.endswith(("_std", "_sem"))}
-    from recal.positions import Positions
+    from recal.model.positions import Positions
 
     with pytest.raises(RecalInputError):
         information_gain(Positions.from_columns(bare), fit24.coefficients, fit24.covariance, LAT)

@@ -1,4 +1,4 @@
-"""Linear psi-angle error model (recal.ins_error): what alignment hides, agreement with the
+"""Linear psi-angle error model (recal.nav.ins_error): what alignment hides, agreement with the
 navigation, orientation dependence, uncertainty propagation."""
 
 from __future__ import annotations
@@ -8,17 +8,17 @@ import math
 import numpy as np
 import pytest
 
-from recal.alignment import align_static
-from recal.coefficients import CoefficientSet
-from recal.ins_error import (
+from recal.model.coefficients import CoefficientSet
+from recal.nav.alignment import align_static
+from recal.nav.ins_error import (
     describe_change,
     predict_from_uncertainty,
     predict_static_error,
     schuler_amplitude_m,
 )
-from recal.navigation import correct_outputs, decimate, navigate, schuler_period_s
-from recal.simulate import NoiseSpec
-from recal.trajectory import VoyageSpec, simulate_voyage
+from recal.nav.navigation import correct_outputs, decimate, navigate, schuler_period_s
+from recal.nav.trajectory import VoyageSpec, simulate_voyage
+from recal.sim.simulate import NoiseSpec
 
 LAT = 45.0
 TRUTH = CoefficientSet.seed_truth()

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 
 
 @pytest.fixture(scope="module")
@@ -94,10 +94,10 @@ def test_indicator_threshold_ends_the_cycles(gyro_positions):
 
 
 def test_forked_workers_give_the_same_runs_as_one_process(gyro_positions):
-    from recal.mcs import run_mcs
-    from recal.model import Model, ParameterLayout
-    from recal.phases import paper_phases
-    from recal.problem import Problem
+    from recal.model.error_model import Model, ParameterLayout
+    from recal.solve.mcs import run_mcs
+    from recal.solve.phases import paper_phases
+    from recal.solve.problem import Problem
 
     layout = ParameterLayout((Model.seed("gyro"),))
     theta0 = CoefficientSet.seed_truth().to_vector(layout)

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.session import session_positions, session_slews, simulate_session
-from recal.simulate import simulate_positions
-from recal.surrogate import SurrogateProblem, data_noise
+from recal.model.coefficients import CoefficientSet
+from recal.sim.session import session_positions, session_slews, simulate_session
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.surrogate import SurrogateProblem, data_noise
 from service.capture_sim import kvh_like_truth
 
 LATITUDE = 40.0

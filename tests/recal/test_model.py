@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.model import Model, ParameterLayout, inv3
-from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
-from recal.terms import MISALIGNMENT_NAMES, catalogue_terms
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import Model, ParameterLayout, inv3
+from recal.model.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
+from recal.model.terms import MISALIGNMENT_NAMES, catalogue_terms
 
 
 def test_reference_values_match_conventions():

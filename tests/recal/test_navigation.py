@@ -1,4 +1,4 @@
-"""Strapdown navigation (recal.navigation): accuracy on noiseless data, the linear error model,
+"""Strapdown navigation (recal.nav.navigation): accuracy on noiseless data, the linear error model,
 decimation and correction."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from recal.coefficients import CoefficientSet
-from recal.ins_error import predict_static_error
-from recal.navigation import (
+from recal.model.coefficients import CoefficientSet
+from recal.nav.ins_error import predict_static_error
+from recal.nav.navigation import (
     Decimator,
     attitude_matrix,
     correct_outputs,
@@ -18,8 +18,8 @@ from recal.navigation import (
     euler_angles,
     navigate,
 )
-from recal.simulate import NoiseSpec
-from recal.trajectory import VoyageSpec, simulate_voyage
+from recal.nav.trajectory import VoyageSpec, simulate_voyage
+from recal.sim.simulate import NoiseSpec
 
 LAT = 45.0
 NOISELESS = NoiseSpec(0.0, 0.0)

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from recal.coefficients import CoefficientSet
-from recal.navigation import DEG_H_TO_RAD_S, attitude_matrix, navigate
-from recal.reference import G0_M_S2
-from recal.simulate import NoiseSpec
-from recal.trajectory import Leg, VoyageSpec, simulate_voyage
+from recal.model.coefficients import CoefficientSet
+from recal.model.reference import G0_M_S2
+from recal.nav.navigation import DEG_H_TO_RAD_S, attitude_matrix, navigate
+from recal.nav.trajectory import Leg, VoyageSpec, simulate_voyage
+from recal.sim.simulate import NoiseSpec
 
 inu = pytest.importorskip("inu")
 

@@ -1,4 +1,4 @@
-"""recal.noise: Allan deviation against allantools, and window standard errors against the
+"""recal.detect.noise: Allan deviation against allantools, and window standard errors against the
 empirical spread of window means (white, quantised, Gauss-Markov, negatively correlated)."""
 
 from __future__ import annotations
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from recal import noise
-from recal.static import detect_static, pooled_standard_errors
+from recal.detect import noise
+from recal.detect.noise import pooled_standard_errors
+from recal.detect.static import detect_static
 
 allantools = pytest.importorskip("allantools")
 

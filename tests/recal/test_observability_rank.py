@@ -6,14 +6,14 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.model import Model, ParameterLayout
-from recal.observability import INFO_MIN, ROTATION_REASON, analyze, jacobian
-from recal.positions import Positions
-from recal.problem import Problem
-from recal.reference import normal_gravity_g
-from recal.simulate import simulate_positions, truth_model
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import Model, ParameterLayout
+from recal.model.positions import Positions
+from recal.model.reference import normal_gravity_g
+from recal.sim.simulate import simulate_positions, truth_model
+from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.observability import INFO_MIN, ROTATION_REASON, analyze, jacobian
+from recal.solve.problem import Problem
 
 LAT = 45.0
 

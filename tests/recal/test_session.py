@@ -1,15 +1,15 @@
-"""recal.session: the sample-level session simulator's true inputs, slews, noise and timing."""
+"""recal.sim.session: the sample-level session simulator's true inputs, slews, noise and timing."""
 
 import math
 
 import numpy as np
 import pytest
 
-from recal.coefficients import CoefficientSet
 from recal.errors import RecalInputError
-from recal.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
-from recal.session import axis_angle, session_positions, simulate_session
-from recal.simulate import NoiseSpec, simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.model.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
+from recal.sim.session import axis_angle, session_positions, simulate_session
+from recal.sim.simulate import NoiseSpec, simulate_positions
 
 RATE = 100.0
 QUIET = NoiseSpec(arw_deg_rt_h=0.0, vrw_ug_rt_hz=0.0)

@@ -1,4 +1,4 @@
-"""recal.slews: integration of downsampled increments, the simulator's slews, the joint fit."""
+"""recal.detect.slews: integration of downsampled increments, the simulator's slews, the joint fit."""
 
 from __future__ import annotations
 
@@ -7,15 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, build_models, calibrate
-from recal.coefficients import CoefficientSet
-from recal.model import ParameterLayout
-from recal.observability import COMMON_ROTATION_REASON
-from recal.problem import Problem
-from recal.reference import OMEGA_IE_RAD_S
-from recal.session import session_positions, session_slews, simulate_session
-from recal.simulate import NoiseSpec
-from recal.slews import (
+from recal.detect.slews import (
     DEG_H_TO_RAD_S,
     SlewCollector,
     Slews,
@@ -29,6 +21,14 @@ from recal.slews import (
     slew_rotations,
     slews_from_reduced,
 )
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import ParameterLayout
+from recal.model.reference import OMEGA_IE_RAD_S
+from recal.sim.session import session_positions, session_slews, simulate_session
+from recal.sim.simulate import NoiseSpec
+from recal.solve.calibrate import CalibrationOptions, build_models, calibrate
+from recal.solve.observability import COMMON_ROTATION_REASON
+from recal.solve.problem import Problem
 
 QUIET = NoiseSpec(arw_deg_rt_h=0.0, vrw_ug_rt_hz=0.0)
 

@@ -1,14 +1,14 @@
 """Issue 18 item 6: a hand-held MEMS recording whose accelerometer design is weak (4 poses) still
 calibrates what it shows -- the gyro from the slews, part of the accelerometer -- and holds the
 rest at the prior with its uncertainty (docs/reference.md#cli: exit 2 only when nothing at all
-can be estimated). The recording: recal.session.simulate_handheld (raw counts, 100 Hz,
+can be estimated). The recording: recal.sim.session.simulate_handheld (raw counts, 100 Hz,
 131 counts/(deg/s) gyro with a bias of degrees per second, 16384 counts/g accelerometer)."""
 
 import json
 
 import numpy as np
 
-from recal.session import mems_truth, simulate_handheld
+from recal.sim.session import mems_truth, simulate_handheld
 from service.cli.main import main
 
 

@@ -45,9 +45,9 @@ def test_ferraris_gyro_scale_from_the_slews_matches_imucal(shared_data, tmp_path
 def test_without_closed_turns_the_flips_alone_are_off(shared_data, tmp_path, capsys):
     """The slew invariant cannot see a turn about the vertical: without the closed-turn
     assumption the scale comes from the hand-made face flips only, and is off by more."""
-    from recal.calibrate import CalibrationOptions, calibrate
-    from recal.positions import Positions
-    from recal.slews import Slews
+    from recal.detect.slews import Slews
+    from recal.model.positions import Positions
+    from recal.solve.calibrate import CalibrationOptions, calibrate
 
     data = shared_data / "imucal"
     pos = tmp_path / "fer.csv"

@@ -1,4 +1,4 @@
-"""recal.static: the static-window detector, on the real Xsens recording and synthetic sessions."""
+"""recal.detect.static: the static-window detector, on the real Xsens recording and synthetic sessions."""
 
 from __future__ import annotations
 
@@ -6,15 +6,10 @@ import numpy as np
 import pytest
 
 from drivers.xsens_text import load_xsens_pair
+from recal.detect.static import DetectorConfig, StaticDetector, detect_static
+from recal.detect.windows import Window, windows_to_columns
 from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.static import (
-    DetectorConfig,
-    StaticDetector,
-    Window,
-    detect_static,
-    windows_to_columns,
-)
+from recal.model.positions import Positions
 
 RATE = 100.0
 NOISE_A = 1e-3  # accel noise per sample, g

@@ -1,4 +1,4 @@
-"""Per-triad stillness (issue 18 item 5) on hand-held MEMS recordings (recal.session.
+"""Per-triad stillness (issue 18 item 5) on hand-held MEMS recordings (recal.sim.session.
 simulate_handheld): poses still enough for the accelerometer while the gyro shows tremor."""
 
 from __future__ import annotations
@@ -6,20 +6,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal import static
-from recal.errors import RecalInputError
-from recal.model import Model
-from recal.positions import Positions
-from recal.problem import Problem
-from recal.session import simulate_handheld
-from recal.static import (
+from recal.detect import static
+from recal.detect.floor import estimate_noise_floor
+from recal.detect.noise import pooled_standard_errors
+from recal.detect.static import (
     DetectorConfig,
     StaticDetector,
     detect_static,
-    estimate_noise_floor,
-    pooled_standard_errors,
-    windows_to_columns,
 )
+from recal.detect.windows import windows_to_columns
+from recal.errors import RecalInputError
+from recal.model.error_model import Model
+from recal.model.positions import Positions
+from recal.sim.session import simulate_handheld
+from recal.solve.problem import Problem
 
 
 def windows_per_hold(session, windows) -> np.ndarray:
@@ -105,7 +105,7 @@ def test_a_short_pose_with_moving_edges_is_not_taken_for_tremor(monkeypatch):
 def _spec(**kw):
     from dataclasses import replace
 
-    from recal.session import HandheldSpec
+    from recal.sim.session import HandheldSpec
 
     return replace(HandheldSpec(), **kw)
 

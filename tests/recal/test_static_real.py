@@ -1,5 +1,5 @@
-"""recal.static on real recordings (issue 7): thresholds with no flag, short holds, lost frames,
-correlated noise. Sample-level sessions from recal.session, KVH bytes from service.capture_sim."""
+"""recal.detect.static on real recordings (issue 7): thresholds with no flag, short holds, lost frames,
+correlated noise. Sample-level sessions from recal.sim.session, KVH bytes from service.capture_sim."""
 
 from __future__ import annotations
 
@@ -8,21 +8,19 @@ import pytest
 
 from drivers import DecoderConfig, decode_bulk
 from drivers.xsens_text import load_xsens_pair
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.errors import RecalInputError
-from recal.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS, Positions
-from recal.session import Session, gauss_markov, simulate_session
-from recal.simulate import NoiseSpec
-from recal.static import (
+from recal.detect.floor import NoiseFloor, NoiseFloorEstimator, estimate_noise_floor
+from recal.detect.noise import pooled_standard_errors
+from recal.detect.static import (
     DetectorConfig,
-    NoiseFloor,
-    NoiseFloorEstimator,
     StaticDetector,
     detect_static,
-    estimate_noise_floor,
-    pooled_standard_errors,
-    windows_to_columns,
 )
+from recal.detect.windows import windows_to_columns
+from recal.errors import RecalInputError
+from recal.model.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS, Positions
+from recal.sim.session import Session, gauss_markov, simulate_session
+from recal.sim.simulate import NoiseSpec
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.capture_sim import Damage, kvh_like_truth, session_to_kvh
 
 FOG = NoiseSpec(arw_deg_rt_h=5e-4, vrw_ug_rt_hz=20.0)

@@ -1,4 +1,4 @@
-"""Tests of the fish swarms: recal.swarm, recal.nafsa, recal.safsa, recal.oafsa."""
+"""Tests of the fish swarms: recal.solve.swarm, recal.solve.nafsa, recal.solve.safsa, recal.solve.oafsa."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from recal.nafsa import NafsaConfig, nafsa
-from recal.oafsa import OafsaConfig, oafsa
-from recal.safsa import SafsaConfig, safsa
-from recal.swarm import SwarmBook, SwarmConfig, SwarmResult
+from recal.solve.nafsa import NafsaConfig, nafsa
+from recal.solve.oafsa import OafsaConfig, oafsa
+from recal.solve.safsa import SafsaConfig, safsa
+from recal.solve.swarm import SwarmBook, SwarmConfig, SwarmResult
 
 SOLVERS = {
     "nafsa": (nafsa, NafsaConfig),

@@ -26,9 +26,9 @@ from psycopg import sql
 from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
-from recal.calibrate import CalibrationResult, calibrate
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationResult, calibrate
 from service.db import Base, CalibrationRecord, Store
 
 PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")

@@ -14,8 +14,8 @@ import pytest
 import uvicorn
 from fastapi.testclient import TestClient
 
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
 from service.api import create_app
 from service.config import ApiSettings
 from service.db import CalibrationRecord, Store

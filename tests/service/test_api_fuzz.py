@@ -17,8 +17,8 @@ import schemathesis
 import uvicorn
 from hypothesis import HealthCheck, given, settings
 
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
 from service.api import create_app
 from service.config import ApiSettings
 from service.db import CalibrationRecord, Store

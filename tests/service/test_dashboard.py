@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from fastapi.testclient import TestClient
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.positions import Positions
-from recal.simulate import simulate_positions
+from recal.model.positions import Positions
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.api import create_app
 from service.capture_sim import kvh_like_truth
 from service.dashboard import plotly_js

@@ -11,7 +11,7 @@ from typing import Any
 import httpx
 import pytest
 
-from recal.session import simulate_session
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import (
     DetectorSettings,

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from sqlalchemy import create_engine, insert
 
-from recal.coefficients import CoefficientSet
+from recal.detect.slews import ReducedSlew
 from recal.errors import RecalInputError
-from recal.positions import Positions
-from recal.simulate import simulate_positions
-from recal.slews import ReducedSlew
+from recal.model.coefficients import CoefficientSet
+from recal.model.positions import Positions
+from recal.sim.simulate import simulate_positions
 from service import migrations
 from service.db import SCHEMA_VERSION, CalibrationRecord, SchemaVersionRow, Store, StoreError
 

@@ -8,9 +8,9 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, CalibrationResult, calibrate
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, CalibrationResult, calibrate
 from service.db import CalibrationRecord
 from service.gate import GateConfig, gate
 
@@ -86,7 +86,7 @@ def test_a_wrong_latitude_is_rejected_by_chi2(previous: CalibrationRecord) -> No
 
 
 def test_an_insufficient_design_is_rejected(calibration_result: CalibrationResult) -> None:
-    # recal.calibrate itself refuses insufficient designs; the gate must still hold the line.
+    # recal.solve.calibrate itself refuses insufficient designs; the gate must still hold the line.
     report = dataclasses.replace(
         calibration_result.observability,
         verdict="insufficient",

@@ -24,9 +24,9 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import create_engine, inspect, text
 
-from recal.coefficients import CoefficientSet
-from recal.simulate import simulate_positions
-from recal.slews import ReducedSlew
+from recal.detect.slews import ReducedSlew
+from recal.model.coefficients import CoefficientSet
+from recal.sim.simulate import simulate_positions
 from service import migrations
 from service.cli.main import main
 from service.db import SCHEMA_VERSION, Base, CalibrationRecord, Store, StoreError
@@ -335,7 +335,7 @@ if __name__ == "__main__":  # regenerate tests/data/release_612b796.db with the 
     import importlib.util
     import sys
 
-    from recal.calibrate import calibrate
+    from recal.solve.calibrate import calibrate
 
     spec = importlib.util.spec_from_file_location("release_db", sys.argv[1])
     release = importlib.util.module_from_spec(spec)

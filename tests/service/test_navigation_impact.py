@@ -8,16 +8,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from recal.calibrate import CalibrationOptions, calibrate
-from recal.coefficients import CoefficientSet
-from recal.ins_error import (
+from recal.model.coefficients import CoefficientSet
+from recal.nav.ins_error import (
     complete_seed_set,
     predict_from_uncertainty,
     predict_static_error,
     seed_covariance,
 )
-from recal.navigation import NMI_M
-from recal.simulate import simulate_positions
+from recal.nav.navigation import NMI_M
+from recal.sim.simulate import simulate_positions
+from recal.solve.calibrate import CalibrationOptions, calibrate
 from service.db import CalibrationRecord
 from service.gate import GateConfig
 from service.recalibration import calibration_job, navigation_impact_of

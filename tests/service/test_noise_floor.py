@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivers import DecoderConfig, decode_bulk
-from recal.session import simulate_session
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service
@@ -108,8 +108,8 @@ def test_refined_only_from_windows_that_passed(tmp_path: Path, session) -> None:
 
 def test_accelerometer_only_windows_do_not_refine_the_floor() -> None:
     """A hand-held window's gyro moving variance is tremor, not the gyro's noise floor."""
-    from recal.session import simulate_handheld
-    from recal.static import detect_static
+    from recal.detect.static import detect_static
+    from recal.sim.session import simulate_handheld
     from service.pipeline import FloorKeeper
 
     s = simulate_handheld(seed=0)  # 2 windows with both triads still, 8 for the accel only

@@ -7,11 +7,11 @@ import httpx
 import numpy as np
 import pytest
 
-from recal.calibrate import build_models
-from recal.coefficients import CoefficientSet
-from recal.model import ParameterLayout
-from recal.session import simulate_session
-from recal.slews import in_accel_frame
+from recal.detect.slews import in_accel_frame
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import ParameterLayout
+from recal.sim.session import simulate_session
+from recal.solve.calibrate import build_models
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.cli.main import main
 from service.config import (

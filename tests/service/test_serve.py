@@ -9,7 +9,7 @@ import time
 
 import httpx
 
-from recal.session import simulate_session
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.db import Store
 

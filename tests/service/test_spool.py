@@ -22,9 +22,9 @@ from psycopg import sql
 from sqlalchemy.engine import make_url
 
 from drivers import DecoderConfig, decode_bulk
-from recal.session import simulate_session
-from recal.slews import ReducedSlew
-from recal.static import DetectorConfig
+from recal.detect.slews import ReducedSlew
+from recal.detect.static import DetectorConfig
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service

@@ -18,7 +18,7 @@ from psycopg import sql
 from sqlalchemy.engine import make_url
 
 from drivers import DecoderConfig, decode_bulk
-from recal.session import simulate_session
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service
@@ -103,7 +103,7 @@ def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
         with pytest.raises(SchedulerRefused, match="scheduler.min_positions"):
             service.scheduler.trigger("auto")
         # four stored windows: the engine's own reason, at once (not a 202 and a failed job)
-        from recal.simulate import simulate_positions
+        from recal.sim.simulate import simulate_positions
 
         four = simulate_positions(kvh_like_truth(4), design="random", n_positions=4)
         service.store.add_positions(service.session_id, four.columns)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from drivers import DecoderConfig, decode_bulk
-from recal.session import simulate_session
+from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service

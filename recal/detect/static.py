@@ -1,0 +1,1204 @@
+"""Static-window detector: finds the still periods of an IMU recording and averages them.
+
+Pure numpy on arrays already in memory (no I/O). A frame index ``c`` is *quiet* when the moving
+variance of the accelerometer and of the gyro, over a centred window of ``W`` frames, stays
+below a threshold; the statistic per triad is the trace of the moving covariance (the sum of the
+three per-axis variances), which does not depend on the triad's orientation. Runs of quiet frames
+are trimmed by ``edge_trim_s`` at both ends and kept when at least ``min_duration_s`` remains.
+
+Thresholds are given, or k times a noise floor: learned from an initial still period (the
+median of the statistic over it, the idea of imu_tk), given as a :class:`NoiseFloor`, or, with
+none of these, learned from the recording itself by :func:`estimate_noise_floor` (the median
+trace of its quietest blocks; :func:`detect_static` does that first pass itself).
+
+Per-triad stillness: a stretch where the accelerometer is quiet but the gyro is not (a unit held
+by hand: the tremor shows on the gyro, far less on gravity) is still a pose for the
+accelerometer. A second track judges the accelerometer alone; each of its runs in which the
+both-triad track kept no window becomes an *accelerometer-only* window (``Window.gyro_still``
+False, column ``gyro_still`` = 0): the accelerometer fit uses it, the gyro's static invariants do
+not, and the slews may still start and end there. Runs where both triads are still give windows
+exactly as before (a turn about the vertical, which the accelerometer cannot see, still splits
+two poses). :class:`DetectionReport` counts the accelerometer's still stretches (the poses seen)
+and says what became of each.
+
+Faults: an invalid-status frame, or a sequence gap (``lost_before > 0``), longer than
+``max_gap_frames`` (default 5) *splits* a static run like a motion edge (with the same edge
+trim). A piece that is then too short is rejected and counted under that fault. Shorter holes are
+bridged: the missing or invalid frames are left out of every statistic and counted in the
+window's ``frames_lost`` / ``frames_invalid``.
+
+Each window also gets the standard error of its means with correlated noise included, from
+Allan statistics over blocks of its own frames; :func:`pooled_standard_errors` pools them over a
+recording. The noise modelling lives in :mod:`recal.detect.noise` (docs/engine.md, "Correlated noise");
+it is imported here for the detector and for the names other modules import from here.
+
+:class:`StaticDetector` is the one implementation; :func:`detect_static` feeds it the whole
+recording in slices. Decisions are made from chunk-independent sums (van Herk blocks aligned on
+the global frame index, exact integer counts), so any chunking yields the same windows; the
+window means agree to rounding (about 1e-15 relative).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from recal.detect.floor import RATE_PROBE as _RATE_PROBE
+from recal.detect.floor import NoiseFloor, default_window_s, estimate_noise_floor
+from recal.detect.noise import allan_sums as _allan_sums
+from recal.detect.noise import standard_errors as _standard_errors
+from recal.detect.windows import Window
+from recal.errors import RecalInputError
+
+#: Reasons a static run is rejected, as keys of :attr:`DetectionReport.rejected`.
+#: "gyro_not_still": the gyro was never quiet long enough in a still stretch of the accelerometer,
+#: which is kept as an accelerometer-only window (rejected for the gyro, used for the accel).
+REJECT_REASONS = ("too_short", "invalid_status", "sequence_gap", "rotating", "gyro_not_still")
+#: An accelerometer-only window needs the gyro loud through the pose (tremor): when one quiet
+#: stretch of both triads covers this share of the accelerometer's still run, the gyro was
+#: still and only the edges moved (a short pose whose slews the accelerometer cannot see yet),
+#: and the run stays rejected as the both-triad detector found it. Tremor leaves the gyro quiet
+#: for a few tenths of a second at a time (at most 0.32 of a pose in the hand-held simulations),
+#: a 0.6 s hold between turns of a FOG for about 0.75 of the accelerometer's run.
+GYRO_QUIET_SHARE = 0.5
+#: Each reason in plain words, for summaries and reports.
+REASON_TEXT = {
+    "too_short": "too short",
+    "invalid_status": "cut by invalid frames",
+    "sequence_gap": "cut by a sequence gap",
+    "rotating": "rotating (mean gyro off the reference)",
+    "gyro_not_still": "gyro not still (used for the accelerometer only)",
+}
+#: Rejected stretches listed in :attr:`DetectionReport.rejected_stretches` at most (the counts in
+#: ``rejected`` stay complete): a plot needs them, and a noisy recording can have very many.
+MAX_REJECTED_STRETCHES = 10_000
+#: Rejected stretches the summary lists one by one (the rest are counted by reason).
+MAX_LISTED_REJECTIONS = 20
+
+_SLICE = 1 << 16  # frames processed per internal step: bounds the temporaries
+_EPS = float(np.finfo(np.float64).eps)
+
+# Raw row layout kept in the buffer.
+_T, _G, _A, _TEMP, _VALID, _LOST = 0, slice(1, 4), slice(4, 7), 7, 8, 9
+_TRA, _TRG = 10, 11  # the moving-variance traces, once computed (centre frames)
+_NCOL = 12
+_NFEAT = 22  # per-frame terms summed over a window (see _piece_features)
+_FAULT_NAMES = {1: "invalid_status", 2: "sequence_gap"}
+
+
+#: Default max_gap_frames: holes a window bridges (see DetectorConfig).
+DEFAULT_MAX_GAP_FRAMES = 5
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """How static windows are found. Durations in s; thresholds in (input units)^2.
+
+    Durations left at None follow the sample rate (see :meth:`durations`).
+
+    window_s: length of the centred moving-variance window. Default about 100 frames, between
+        0.1 s and 1 s (:func:`default_window_s`): 1 s at 100 Hz, 0.1 s at 1 kHz. The trace of
+        white noise then spreads about 8 % at any rate, and the window is short enough for a 1 s
+        hold at 1 kHz while a slew is still seen (its rate changes by far more than the gyro
+        noise within 0.1 s).
+    min_duration_s: shortest window kept, after trimming. Default max(window_s, 0.5 s): a mean
+        over at least one moving window (1 s at 100 Hz) and at least 0.5 s, so that a turning
+        point of a motion cannot pass for a hold, while a 1 s hold at 1 kHz (0.8 s after the
+        window and the trim) is kept.
+    edge_trim_s: dropped at both ends of a run (and next to a fault). The run already starts
+        half a window after the last loud frame; the trim also drops the settling tail that stays
+        below the threshold. Default window_s / 2 (0.5 s at 100 Hz, 0.05 s at 1 kHz): the first
+        frame averaged is then a whole moving window after the last loud one.
+    accel_threshold, gyro_threshold: explicit limits on the moving-variance trace. Each one not
+        given is threshold_k x the noise floor: ``noise_floor`` when given, else learned from the
+        initial still period ``init_still_s``. :class:`StaticDetector` needs one of the three;
+        :func:`detect_static` estimates the noise floor itself when none is given.
+    init_still_s: the recording starts with this long a still period (imu_tk uses 50 s).
+    noise_floor: the moving-variance trace of still data, from :func:`estimate_noise_floor` or
+        :class:`NoiseFloorEstimator` (a first pass over the recording, or a stored value).
+    threshold_k: threshold = k x noise floor. On white noise the trace spreads about 8 %
+        (W = 101) and real still periods reach 1.3x the median; poses of the Xsens recording
+        reach 3.5x from settling, so 5 leaves headroom while a disturbance of twice the noise
+        RMS is already rejected.
+    sample_rate_hz: frames per second; derived from the median time step of the first 1024
+        frames when not given.
+    max_gap_frames: longest hole (consecutive invalid frames, or frames lost in one gap) a
+        window may contain; a longer one splits the run. Default 5: a missing frame does not
+        bias a static mean (the mean of the others estimates the same constant), it only removes
+        one sample, so splitting there throws data away (a capture losing 0.1 % of its frames
+        gave 224 windows from 24 holds). 5 frames stay far below the moving window (about 100
+        frames), which still sees the motion around a hole.
+    gyro_rate_max: when set, reject a window whose mean gyro differs from the reference (the
+        still-period mean when learning, else zero) by more than this, in gyro units (vector
+        norm). Variance cannot see a steady rotation about the gravity vector; this can.
+    accel_only_windows: per-triad stillness (default on). A still stretch of the accelerometer
+        in which the gyro never stays under its threshold long enough for a window (hand
+        tremor) becomes an accelerometer-only window (``Window.gyro_still`` False) instead of
+        being dropped. Off: every window needs both triads still. A gyro_threshold of inf
+        lets the gyro veto nothing.
+    """
+
+    window_s: float | None = None
+    min_duration_s: float | None = None
+    edge_trim_s: float | None = None
+    accel_threshold: float | None = None
+    gyro_threshold: float | None = None
+    init_still_s: float | None = None
+    threshold_k: float = 5.0
+    sample_rate_hz: float | None = None
+    max_gap_frames: int = DEFAULT_MAX_GAP_FRAMES
+    gyro_rate_max: float | None = None
+    noise_floor: NoiseFloor | None = None
+    accel_only_windows: bool = True
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.threshold_k) and self.threshold_k > 0):
+            raise RecalInputError(
+                f"detector threshold_k must be a positive number, not {self.threshold_k}"
+            )
+        optional_positive = {
+            "window_s": self.window_s,
+            "min_duration_s": self.min_duration_s,
+            "init_still_s": self.init_still_s,
+            "sample_rate_hz": self.sample_rate_hz,
+            "gyro_rate_max": self.gyro_rate_max,
+        }
+        for name, value in optional_positive.items():
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise RecalInputError(f"detector {name} must be a positive number, not {value}")
+        for name in ("accel_threshold", "gyro_threshold"):
+            value = getattr(self, name)
+            if value is not None and (math.isnan(value) or value < 0):
+                raise RecalInputError(f"detector {name} must be a number >= 0, not {value}")
+        trim = self.edge_trim_s
+        if trim is not None and not (math.isfinite(trim) and trim >= 0):
+            raise RecalInputError(f"detector edge_trim_s must be >= 0, not {trim}")
+        if int(self.max_gap_frames) != self.max_gap_frames or self.max_gap_frames < 0:
+            raise RecalInputError(
+                f"detector max_gap_frames must be a whole number >= 0, not {self.max_gap_frames}"
+            )
+
+    @property
+    def has_thresholds(self) -> bool:
+        """Whether the thresholds are given or can be learned without a first pass."""
+        both = self.accel_threshold is not None and self.gyro_threshold is not None
+        return both or self.init_still_s is not None or self.noise_floor is not None
+
+    def durations(self, rate_hz: float) -> tuple[float, float, float]:
+        """(window_s, edge_trim_s, min_duration_s) at ``rate_hz``, the defaults filled in."""
+        window = default_window_s(rate_hz) if self.window_s is None else self.window_s
+        trim = window / 2 if self.edge_trim_s is None else self.edge_trim_s
+        shortest = max(window, 0.5) if self.min_duration_s is None else self.min_duration_s
+        return window, trim, shortest
+
+
+@dataclass
+class DetectionReport:
+    """What the detector saw and decided; counts accumulate as frames are fed."""
+
+    frames: int = 0
+    invalid_frames: int = 0
+    lost_frames: int = 0
+    gaps: int = 0
+    windows_kept: int = 0
+    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
+    sample_rate_hz: float | None = None
+    window_samples: int | None = None
+    accel_threshold: float | None = None
+    gyro_threshold: float | None = None
+    thresholds_learned: bool = False
+    threshold_source: str = ""
+    gyro_reference: np.ndarray | None = None
+    duration_s: float = 0.0
+    short_stretches: int = 0  # quiet stretches too short to give a window (no fault involved)
+    longest_short_frames: int = 0  # the longest of them, quiet frames
+    edge_trim_frames: int = 0
+    required_frames: int = 0
+    #: (start_s, end_s, reason) of rejected quiet stretches, times from the session start, in the
+    #: order they were decided, at most MAX_REJECTED_STRETCHES. A quiet run too short as a whole
+    #: is one "too_short" stretch; a piece of a long run cut short by a fault is listed under that
+    #: fault; "rotating" and "invalid_status" give the trimmed run's first and last frame;
+    #: "gyro_not_still" an accelerometer-only window's first and last frame.
+    rejected_stretches: list[tuple[float, float, str]] = field(default_factory=list)
+    #: Per-triad stillness: still stretches of the accelerometer (the poses seen), how many of
+    #: them gave a window (for both triads or for the accelerometer only), and the windows kept
+    #: for the accelerometer only (gyro not still). 0 with ``accel_only_windows`` off.
+    still_stretches: int = 0
+    still_stretches_used: int = 0
+    accel_only_windows: int = 0
+    #: (start_s, end_s) of rejected stretches that are part of a pose other windows use.
+    in_used_pose: set[tuple[float, float]] = field(default_factory=set)
+
+    def _add_stretches(self, start_s, end_s, reason) -> None:
+        """List rejected stretches (scalars or arrays; reason one name or one per stretch)."""
+        room = MAX_REJECTED_STRETCHES - len(self.rejected_stretches)
+        start = np.atleast_1d(np.asarray(start_s, dtype=float))[:room]
+        if room <= 0 or start.size == 0:
+            return
+        end = np.atleast_1d(np.asarray(end_s, dtype=float))[:room]
+        why = np.broadcast_to(np.asarray(reason), (np.atleast_1d(start_s).shape[0],))[:room]
+        self.rejected_stretches.extend(zip(start.tolist(), end.tolist(), why.tolist(), strict=True))
+
+    def accepting_min_duration_s(self) -> float | None:
+        """The largest min_duration_s that would keep the longest too-short quiet stretch, s
+        (None when even 0 would not, because the edge trim eats it all)."""
+        if not self.short_stretches or not self.sample_rate_hz:
+            return None
+        keep = self.longest_short_frames - 2 * self.edge_trim_frames
+        return keep / self.sample_rate_hz if keep >= 2 else None
+
+    def rejection_lines(self, limit: int = MAX_LISTED_REJECTIONS) -> list[str]:
+        """One line per rejected stretch, in time order, saying why (at most ``limit``; then
+        the count of the rest by reason)."""
+        stretches = sorted(self.rejected_stretches)
+        rate = self.sample_rate_hz
+        need = (self.required_frames + 2 * self.edge_trim_frames) / rate if rate else None
+        lines = []
+        for a, b, why in stretches[:limit]:
+            text = REASON_TEXT.get(why, why)
+            if why == "too_short" and need:
+                text += f" (a window needs {need:.3g} s of still frames)"
+            if (a, b) in self.in_used_pose:
+                text += "; part of a pose another window uses"
+            lines.append(f"  {a:.2f}-{b:.2f} s ({b - a:.2f} s): {text}")
+        rest = stretches[limit:]
+        if rest:
+            by = {}
+            for _, _, why in rest:
+                by[why] = by.get(why, 0) + 1
+            more = ", ".join(f"{REASON_TEXT.get(k, k)} {v}" for k, v in by.items())
+            lines.append(f"  ... and {len(rest)} more stretches: {more}")
+        return (["rejected stretches (start-end, length: why):", *lines]) if lines else []
+
+    def summary_lines(self) -> list[str]:
+        """Plain-words summary, a few lines, for a log or the command line."""
+        rate = f"{self.sample_rate_hz:.6g} Hz" if self.sample_rate_hz else "rate unknown"
+        lines = [
+            f"frames: {self.frames} ({self.duration_s:.1f} s at {rate}); "
+            f"invalid status {self.invalid_frames}, lost {self.lost_frames} in {self.gaps} gaps"
+        ]
+        if self.accel_threshold is not None and self.gyro_threshold is not None:
+            how = self.threshold_source or ("learned" if self.thresholds_learned else "given")
+            lines.append(
+                f"thresholds on the moving-variance trace over {self.window_samples} frames "
+                f"({how}): accel {self.accel_threshold:.4g}, gyro {self.gyro_threshold:.4g}"
+            )
+        reasons = ", ".join(f"{k} {v}" for k, v in self.rejected.items())
+        kept = f"{self.windows_kept} kept"
+        if self.accel_only_windows:
+            both = self.windows_kept - self.accel_only_windows
+            kept += (
+                f" ({both} with both triads still, {self.accel_only_windows} for the "
+                "accelerometer only: gyro not still)"
+            )
+        lines.append(f"windows: {kept}; rejected: {reasons}")
+        if self.still_stretches:
+            lines.append(
+                f"poses: {self.still_stretches} still stretches of the accelerometer seen, "
+                f"{self.still_stretches_used} used, "
+                f"{self.still_stretches - self.still_stretches_used} without any window"
+            )
+        lines += self.rejection_lines()
+        if self.short_stretches and self.sample_rate_hz:
+            rate = self.sample_rate_hz
+            need = (self.required_frames + 2 * self.edge_trim_frames) / rate
+            line = (
+                f"{self.short_stretches} quiet stretches too short to keep (longest "
+                f"{self.longest_short_frames / rate:.3g} s of quiet frames; a window needs "
+                f"{need:.3g} s: min_duration_s + 2 x edge_trim_s)"
+            )
+            shortest = self.accepting_min_duration_s()
+            if shortest is not None:
+                line += f"; min_duration_s {math.floor(shortest * 1000) / 1000:g} would keep it"
+            else:
+                line += "; lower edge_trim_s and min_duration_s to keep it"
+            lines.append(line)
+        return lines
+
+
+@dataclass
+class DetectionResult:
+    windows: list[Window]
+    report: DetectionReport
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    rate: float
+    h: int  # half window; W = 2h + 1
+    trim: int
+    required: int  # frames a kept window needs
+    n_min: int  # valid frames a moving window needs to count as measured
+
+    @property
+    def block(self) -> int:
+        """Frames per block of the Allan statistics: one moving window."""
+        return self.W
+
+    @property
+    def W(self) -> int:  # noqa: N802 - the window length is W throughout the docs
+        return 2 * self.h + 1
+
+
+@dataclass
+class _Piece:
+    """A trimmed run being summed: frame range, first/last times, value reference, sums."""
+
+    first: int
+    last: int
+    t_first: float
+    t_last: float
+    g_ref: np.ndarray
+    a_ref: np.ndarray
+    sums: np.ndarray
+    blocks: list[np.ndarray] = field(default_factory=list)  # (k, 7) complete block sums
+    partial: tuple[int, np.ndarray] | None = None  # (block id, [frames, 7 sums]) still open
+
+
+class StaticDetector:
+    """Incremental detector: ``feed`` chunks of frames, get windows as they close; ``flush``.
+
+    Memory is bounded by the frames not yet decided: about two moving windows plus the edge trim,
+    plus the initial still period while thresholds are being learned. An open window is kept as
+    running sums, however long it lasts.
+
+    ``on_traces``, when given, is called as each batch of frames gets its moving variance, in
+    frame order, with keyword arguments: first_index (global index of the batch's first frame),
+    time_s (from the session start), gyro and accel (n, 3) and temperature_c (n,) as fed, valid
+    (n,) bool, accel_trace and gyro_trace (n,) moving-variance traces, (input units)^2 (inf where
+    the window holds too few valid frames). The arrays are views: copy what is kept. It is how a
+    report follows the whole recording without this class keeping it.
+    """
+
+    def __init__(self, config: DetectorConfig, on_traces=None) -> None:
+        if not config.has_thresholds:
+            raise RecalInputError(
+                "the detector needs both accel and gyro thresholds, an initial still period "
+                "(init_still_s) or a noise floor (estimate_noise_floor) to set them from"
+            )
+        self.config = config
+        self.report = DetectionReport()
+        self._on_traces = on_traces
+        self._data = np.empty((0, _NCOL))
+        self._base = 0  # global index of _data[0]
+        self._received = 0
+        self._t0: float | None = None
+        self._t_last = -math.inf
+        self._geom: _Geometry | None = None
+        self._g_ref: np.ndarray | None = None
+        self._a_ref: np.ndarray | None = None
+        self._temp_ref = math.nan
+        self._finished = False
+        # Stage 1: moving statistics per centre frame.
+        self._next_center = 0
+        # Learning: per-centre statistics held until the still period is over.
+        self._thr_a = config.accel_threshold
+        self._thr_g = config.gyro_threshold
+        floor = config.noise_floor
+        self._learning = config.init_still_s is not None and floor is None
+        given = self._thr_a is not None and self._thr_g is not None
+        if given:
+            source = "given"
+        elif floor is not None:
+            source = floor.source
+            thr_a, thr_g = floor.thresholds(config.threshold_k)
+            self._thr_a = thr_a if self._thr_a is None else self._thr_a
+            self._thr_g = thr_g if self._thr_g is None else self._thr_g
+        else:
+            source = f"learned from the initial {config.init_still_s:g} s still period"
+        if not given and (config.accel_threshold is not None or config.gyro_threshold is not None):
+            source += f" ({'accel' if config.accel_threshold is not None else 'gyro'} given)"
+        self.report.threshold_source = source
+        self.report.thresholds_learned = not given
+        self._pending: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._gyro_ref = np.zeros(3)
+        # Stage 2: labels, faults and rejection bookkeeping.
+        self._last_valid = -1
+        self._prev_vq = False
+        self._prev_q = False
+        self._prev_fault = 0
+        self._q_open: tuple[int, int] | None = None  # (start, fault kind on its left)
+        self._c_open: int | None = None  # start of the open quiet candidate
+        self._c_pending = np.zeros(3, dtype=np.int64)  # short pieces in it, by fault kind
+        self._c_pieces = np.zeros((0, 3))  # and their (start_s, end_s, fault kind)
+        self._qhist = np.zeros(0, dtype=bool)
+        # Stage 3: trimmed runs and their running sums.
+        self._next_m = 0
+        self._prev_m = False
+        self._piece: _Piece | None = None
+        self._out: list[Window] = []
+        # Per-triad stillness: a second track on the accelerometer alone (the gyro vetoes
+        # nothing there); its runs the both-triad track left without a window become
+        # accelerometer-only windows (see _merge_accel).
+        self._accel_track: StaticDetector | None = None
+        self._shared: list[tuple] = []  # traces the detector that owns this track computed
+        self._own_sem = True  # the accel track leaves it to the windows it hands on
+        if config.accel_only_windows and self._thr_g != math.inf:
+            track = replace(config, gyro_threshold=math.inf, accel_only_windows=False)
+            self._accel_track = StaticDetector(track)
+            self._accel_track._own_sem = False
+        #: (start_s, end_s, None for a both-triad window, else the rejected stretch) of what
+        #: this track decided near the accel track's undecided frames; pruned as it advances.
+        self._covered: list[tuple[float, float, tuple | None]] = []
+        self._stretches_seen = 0  # own rejected stretches already in _covered
+        self._track_seen = 0  # the accel track's rejected stretches already merged
+
+    # ---- public ---------------------------------------------------------------------------
+    def feed(
+        self,
+        time_s: np.ndarray,
+        gyro: np.ndarray,
+        accel: np.ndarray,
+        temperature_c: np.ndarray | None = None,
+        valid: np.ndarray | None = None,
+        lost_before: np.ndarray | None = None,
+    ) -> list[Window]:
+        """Add frames (time in s, gyro and accel (N, 3)); return the windows that closed."""
+        if self._finished:
+            raise RecalInputError("the detector was flushed; start a new one for a new stream")
+        t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+        n = t.shape[0]
+        g = np.asarray(gyro, dtype=np.float64)
+        a = np.asarray(accel, dtype=np.float64)
+        if g.shape != (n, 3) or a.shape != (n, 3):
+            raise RecalInputError(
+                f"gyro and accel must have shape ({n}, 3) like time_s; got {g.shape} and {a.shape}"
+            )
+        extra = {
+            "temperature_c": temperature_c,
+            "valid": valid,
+            "lost_before": lost_before,
+        }
+        for name, values in extra.items():
+            if values is not None:
+                extra[name] = np.asarray(values).reshape(-1)
+                if extra[name].shape[0] != n:
+                    raise RecalInputError(
+                        f"{name} has {extra[name].shape[0]} values for {n} frames"
+                    )
+        # Slice by slice: bounded temporaries however much is fed at once.
+        for lo in range(0, n, _SLICE):
+            sl = slice(lo, lo + _SLICE)
+            part = {k: (None if v is None else v[sl]) for k, v in extra.items()}
+            self._append(self._rows(t[sl], g[sl], a[sl], **part))
+            self._process(final=False)
+            if self._accel_track is not None:  # slice by slice: it takes this one's traces
+                self._merge_accel(self._accel_track.feed(t[sl], g[sl], a[sl], **part))
+        out, self._out = self._out, []
+        return out
+
+    def flush(self) -> list[Window]:
+        """End of stream: close the open window (the last half window cannot be judged)."""
+        if not self._finished:
+            self._process(final=True)
+            self._finished = True
+            if self._accel_track is not None:
+                self._merge_accel(self._accel_track.flush())
+        out, self._out = self._out, []
+        return out
+
+    @property
+    def buffered_frames(self) -> int:
+        """Frames held in memory (not yet decided, or needed by a moving window)."""
+        track = 0 if self._accel_track is None else self._accel_track.buffered_frames
+        return int(self._data.shape[0]) + track
+
+    # ---- per-triad stillness ----------------------------------------------------------------
+    def _merge_accel(self, accel_windows: list[Window]) -> None:
+        """Fold the accel track's decisions into this (both-triad) track's windows and report.
+
+        Both-triad quiet frames are a subset of the accel's, and both tracks trim alike, so
+        every both-triad window or rejection inside an accel run is decided no later than the
+        run itself: by now this track has decided all that overlaps what the accel track
+        returns. An accel window that overlaps a both-triad window is that pose seen again
+        (dropped); one that does not becomes an accelerometer-only window, and the both-triad
+        rejections inside it (tremor cut the gyro's quiet frames short) give way to one
+        "gyro_not_still" stretch, unless one both-triad quiet stretch covers GYRO_QUIET_SHARE
+        of the run (a still gyro, moving edges: the pose stays rejected as this track found
+        it). An accel-track rejection overlapping nothing of this track is a pose the gyro hid
+        from it (listed); otherwise this track has listed it already.
+        """
+        rep, track = self.report, self._accel_track.report
+        own = rep.rejected_stretches
+        self._covered += [(w.start_s, w.end_s, None) for w in self._out]
+        self._covered += [(a, b, st) for st in own[self._stretches_seen :] for a, b in [st[:2]]]
+        drop: set[int] = set()
+        # a window is its quiet run trimmed: the run's both-triad rejections reach T frames out
+        reach = (self._geom.trim + 0.5) / self._geom.rate if self._geom is not None else 0.0
+        for w in accel_windows:
+            hit = self._overlapping(w.start_s - reach, w.end_s + reach)
+            rep.still_stretches += 1
+            if any(c[2] is None for c in hit):  # the both-triad windows use this pose
+                rep.still_stretches_used += 1
+                parts = [c[2] for c in hit if c[2] is not None and c[2][:2] not in rep.in_used_pose]
+                rep.in_used_pose.update(st[:2] for st in parts)
+                self._short_seen(-sum(st[2] == "too_short" for st in parts), 0.0)
+                continue
+            run = (w.start_s - reach, w.end_s + reach)
+            longest = max((min(b, run[1]) - max(a, run[0]) for a, b, _ in hit), default=0.0)
+            if longest >= GYRO_QUIET_SHARE * (run[1] - run[0]):
+                continue  # a short pose with motion at its edges, not tremor: as rejected
+            for _, _, st in hit:
+                if id(st) not in drop:
+                    drop.add(id(st))
+                    rep.rejected[st[2]] -= 1
+            std = np.concatenate((w.gyro_std, w.accel_std))
+            sem = _window_sem(w.samples, std, w.allan_sq, w.allan_terms, w.block_frames)
+            self._out.append(replace(w, gyro_still=False, gyro_sem=sem[:3], accel_sem=sem[3:]))
+            rep.still_stretches_used += 1
+            rep.windows_kept += 1
+            rep.accel_only_windows += 1
+            rep.rejected["gyro_not_still"] += 1
+            rep._add_stretches(w.start_s, w.end_s, "gyro_not_still")
+        for a, b, why in track.rejected_stretches[self._track_seen :]:
+            hit = self._overlapping(a, b)
+            rep.still_stretches += 1
+            if any(c[2] is None for c in hit):
+                rep.still_stretches_used += 1  # e.g. a turn inside it: both sides kept
+            elif not hit:  # the gyro hid this pose from the both-triad track: list it
+                rep.rejected[why] += 1
+                rep._add_stretches(a, b, why)
+                if why == "too_short":
+                    self._short_seen(1, b - a)
+        self._track_seen = len(track.rejected_stretches)
+        if drop:
+            gone = [st for st in own if id(st) in drop]
+            rep.rejected_stretches = [st for st in own if id(st) not in drop]
+            self._covered = [c for c in self._covered if c[2] is None or id(c[2]) not in drop]
+            self._short_seen(-sum(st[2] == "too_short" for st in gone), 0.0)
+        self._stretches_seen = len(rep.rejected_stretches)
+        self._out.sort(key=lambda w: w.start_index)
+        self._prune_covered()
+
+    def _short_seen(self, count: int, span_s: float) -> None:
+        """Keep the too-short tally right: tremor fragments absorbed by an accelerometer-only
+        window, or part of a pose other windows use, are no pose lost; a short pose only the
+        accel track saw is one."""
+        rep = self.report
+        rep.short_stretches = max(rep.short_stretches + count, 0)
+        rate = self._geom.rate
+        if count > 0:
+            frames = round(span_s * rate) + 1
+            rep.longest_short_frames = max(rep.longest_short_frames, frames)
+        elif count < 0:  # the longest left, from the listed stretches
+            left = [b - a for a, b, why in rep.rejected_stretches
+                    if why == "too_short" and (a, b) not in rep.in_used_pose]  # fmt: skip
+            rep.longest_short_frames = round(max(left) * rate) + 1 if left else 0
+
+    def _overlapping(self, start_s: float, end_s: float) -> list[tuple]:
+        return [c for c in self._covered if c[0] <= end_s and c[1] >= start_s]
+
+    def _prune_covered(self) -> None:
+        """Forget what ends before the accel track's first undecided frame."""
+        track = self._accel_track
+        if track is None or track._geom is None or track._learning:
+            return
+        open_at = [track._next_m]
+        if track._c_open is not None:
+            open_at.append(track._c_open)
+        if track._q_open is not None:
+            open_at.append(track._q_open[0])
+        if track._piece is not None:
+            open_at.append(track._piece.first)
+        first = min(open_at)
+        if first >= track._received:
+            self._covered = []
+            return
+        t = float(track._times(np.array([first]))[0])
+        self._covered = [c for c in self._covered if c[1] >= t]
+
+    # ---- input ----------------------------------------------------------------------------
+    def _rows(
+        self,
+        t: np.ndarray,
+        g: np.ndarray,
+        a: np.ndarray,
+        temperature_c: np.ndarray | None,
+        valid: np.ndarray | None,
+        lost_before: np.ndarray | None,
+    ) -> np.ndarray:
+        """Checked frames as buffer rows; updates the references and the report's counts."""
+        n = t.shape[0]
+        if not np.isfinite(t).all():
+            i = int(np.argmax(~np.isfinite(t)))
+            raise RecalInputError(
+                f"time_s has a NaN or infinite value at frame {self._received + i}"
+            )
+        steps = np.diff(t, prepend=self._t_last)
+        if n and (steps <= 0).any():
+            i = int(np.argmax(steps <= 0))
+            raise RecalInputError(
+                f"time must increase: frame {self._received + i} at {t[i]} s "
+                "does not come after the previous one"
+            )
+        rows = np.empty((n, _NCOL))
+        rows[:, _T] = t
+        rows[:, _G] = g
+        rows[:, _A] = a
+        ok = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
+        if valid is not None:
+            ok &= valid.astype(bool)
+        rows[:, _VALID] = ok
+        rows[:, _TEMP] = np.nan if temperature_c is None else temperature_c
+        lost = np.zeros(n) if lost_before is None else lost_before.astype(np.float64)
+        if (lost < 0).any() or not np.isfinite(lost).all():
+            raise RecalInputError("lost_before must hold frame counts >= 0")
+        rows[:, _LOST] = lost
+        rows[:, _TRA:] = np.nan
+        if n:
+            if self._t0 is None:
+                self._t0 = float(t[0])
+            self._t_last = float(t[-1])
+            if self._g_ref is None and ok.any():
+                # Sums are taken relative to the first valid frame, so raw counts keep precision.
+                first = int(np.argmax(ok))
+                self._g_ref, self._a_ref = g[first].copy(), a[first].copy()
+            if math.isnan(self._temp_ref):
+                finite = ok & np.isfinite(rows[:, _TEMP])
+                if finite.any():
+                    self._temp_ref = float(rows[int(np.argmax(finite)), _TEMP])
+        rep = self.report
+        rep.frames += n
+        rep.invalid_frames += int(n - ok.sum())
+        rep.lost_frames += int(lost.sum())
+        rep.gaps += int((lost > 0).sum())
+        if self._t0 is not None:
+            rep.duration_s = self._t_last - self._t0
+        return rows
+
+    def _append(self, rows: np.ndarray) -> None:
+        self._data = np.concatenate((self._data, rows)) if self._data.size else rows.copy()
+        self._received += rows.shape[0]
+
+    def _view(self, lo: int, hi: int) -> np.ndarray:
+        return self._data[lo - self._base : hi - self._base]
+
+    def _drop_before(self, index: int) -> None:
+        k = index - self._base
+        if k > 0:
+            self._data = self._data[k:]
+            self._base = index
+
+    # ---- pipeline -------------------------------------------------------------------------
+    def _process(self, final: bool) -> None:
+        if self._geom is None and not self._set_geometry(final):
+            return
+        centres = self._moving_stats(final)
+        if centres is not None and self._learning:
+            self._pending.append(centres)
+        elif centres is not None:
+            self._label(*centres)
+        if self._learning:
+            self._maybe_learn(final)
+        if final:
+            self._trim(self._received, np.zeros(0, dtype=bool), final=True)
+        g = self._geom
+        keep = max(0, (self._next_center - g.h) // g.W * g.W)
+        self._drop_before(min(keep, self._next_m))
+
+    def _set_geometry(self, final: bool) -> bool:
+        cfg = self.config
+        rate = cfg.sample_rate_hz
+        if rate is None:
+            n = min(self._received, _RATE_PROBE + 1)
+            if n < _RATE_PROBE + 1 and not final:
+                return False
+            if n < 2:
+                return False
+            rate = 1.0 / float(np.median(np.diff(self._view(0, n)[:, _T])))
+        window_s, trim_s, min_s = cfg.durations(rate)
+        h = max(1, round(window_s * rate / 2))
+        self._geom = _Geometry(
+            rate=rate,
+            h=h,
+            trim=max(0, round(trim_s * rate)),
+            required=max(2, round(min_s * rate)),
+            n_min=h + 1,
+        )
+        self.report.edge_trim_frames = self._geom.trim
+        self.report.required_frames = self._geom.required
+        self._qhist = np.zeros(self._geom.trim, dtype=bool)  # frames before the stream
+        self.report.sample_rate_hz = rate
+        self.report.window_samples = self._geom.W
+        return True
+
+    def _moving_stats(self, final: bool):
+        """Moving count and variance traces for the next centre frames (None if none)."""
+        g = self._geom
+        h, W, M = g.h, g.W, self._received
+        lo = self._next_center
+        hi = M if final else max(M - h, min(h, M))
+        if hi <= lo:
+            return None
+        shared = self._shared.pop(0) if self._shared else None
+        if shared is not None and (shared[0] != lo or shared[1].shape[0] != hi - lo):
+            raise AssertionError("the accel track fell out of step with its detector")
+        n = np.zeros(hi - lo) if shared is None else shared[1]
+        tra = np.full(hi - lo, np.inf) if shared is None else shared[2]
+        trg = np.full(hi - lo, np.inf) if shared is None else shared[3]
+        f_lo, f_hi = max(lo, h), min(hi, M - h)  # centres with a full window
+        if f_hi > f_lo and shared is None:
+            a_lo, a_hi = f_lo - h, f_hi - h  # window starts
+            b0 = a_lo // W * W
+            rows = self._view(b0, f_hi + h)
+            sums = _window_sums(self._features(rows), (a_lo - b0, a_hi - b0), W)
+            cnt = sums[:, 0]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean = sums[:, 1:7] / cnt[:, None]
+                second = sums[:, 7:13] / cnt[:, None]
+                var = second - mean * mean
+            # E[x^2] - E[x]^2 over sums of W terms is off by up to about W/4 ulp of E[x^2]
+            # (x is relative to the reference frame). Take that rounding off, so a constant
+            # window reads exactly 0 at any offset and passes a threshold of 0 (noiseless data).
+            var = np.maximum(var - (2 * W * _EPS) * second, 0.0)
+            measured = cnt >= g.n_min
+            sl = slice(f_lo - lo, f_hi - lo)
+            n[sl] = cnt
+            tra[sl] = np.where(measured, var[:, 3:6].sum(axis=1), np.inf)
+            trg[sl] = np.where(measured, var[:, 0:3].sum(axis=1), np.inf)
+        stats = self._view(lo, hi)
+        stats[:, _TRA], stats[:, _TRG] = tra, trg  # kept for the windows' mean trace
+        if self._on_traces is not None:
+            self._on_traces(
+                first_index=lo,
+                time_s=stats[:, _T] - self._t0,
+                gyro=stats[:, _G],
+                accel=stats[:, _A],
+                temperature_c=stats[:, _TEMP],
+                valid=stats[:, _VALID] > 0,
+                accel_trace=tra,
+                gyro_trace=trg,
+            )
+        self._next_center = hi
+        if self._accel_track is not None:  # the same frames, the same traces: computed once
+            self._accel_track._shared.append((lo, n, tra, trg))
+        return lo, n, tra, trg
+
+    def _features(self, rows: np.ndarray) -> np.ndarray:
+        """Per frame: validity, then values and squares relative to the reference frame."""
+        w = rows[:, _VALID] > 0
+        f = np.zeros((rows.shape[0], 13))
+        if self._g_ref is not None:
+            f[:, 0] = w
+            rel = np.concatenate((rows[:, _G] - self._g_ref, rows[:, _A] - self._a_ref), axis=1)
+            rel[~w] = 0.0  # invalid frames carry no weight and may hold garbage
+            f[:, 1:7] = rel
+            f[:, 7:13] = rel * rel
+        return f
+
+    def _maybe_learn(self, final: bool) -> None:
+        cfg, g = self.config, self._geom
+        if not self._pending:
+            if final:
+                self._raise_short()
+            return
+        lo = self._pending[0][0]
+        hi = self._pending[-1][0] + self._pending[-1][1].shape[0]
+        t = self._view(lo, hi)[:, _T] - self._t0
+        if not final and t[-1] < cfg.init_still_s:
+            return
+        n = np.concatenate([p[1] for p in self._pending])
+        tra = np.concatenate([p[2] for p in self._pending])
+        trg = np.concatenate([p[3] for p in self._pending])
+        if t[-1] < cfg.init_still_s:
+            self._raise_short()
+        sel = (t < cfg.init_still_s) & (n >= g.n_min)
+        if not sel.any():
+            raise RecalInputError(
+                f"the initial still period ({cfg.init_still_s} s) is shorter than one moving "
+                f"window ({g.W} frames) of valid frames: cannot learn thresholds"
+            )
+        if self._thr_a is None:
+            self._thr_a = cfg.threshold_k * float(np.median(tra[sel]))
+        if self._thr_g is None:
+            self._thr_g = cfg.threshold_k * float(np.median(trg[sel]))
+        still = self._view(0, lo + int(np.flatnonzero(t < cfg.init_still_s)[-1]) + 1)
+        ok = still[:, _VALID] > 0
+        self._gyro_ref = still[ok][:, _G].mean(axis=0)
+        rep = self.report
+        rep.gyro_reference = self._gyro_ref.copy()
+        self._learning = False
+        pending, self._pending = self._pending, []
+        for centres in pending:
+            self._label(*centres)
+
+    def _raise_short(self) -> None:
+        raise RecalInputError(
+            f"the recording ({self.report.duration_s:.1f} s) ends before the initial still "
+            f"period of {self.config.init_still_s} s the thresholds are learned from"
+        )
+
+    def _label(self, lo: int, n: np.ndarray, tra: np.ndarray, trg: np.ndarray) -> None:
+        """Quiet / fault labels for frames [lo, lo + len(n)), then runs and trimming."""
+        rep = self.report
+        if rep.accel_threshold is None:
+            rep.accel_threshold, rep.gyro_threshold = self._thr_a, self._thr_g
+        g = self._geom
+        tol = self.config.max_gap_frames
+        rows = self._view(lo, lo + n.shape[0])
+        valid = rows[:, _VALID] > 0
+        idx = np.arange(lo, lo + n.shape[0])
+        last_valid = np.maximum.accumulate(np.where(valid, idx, self._last_valid))
+        if idx.size:
+            self._last_valid = int(last_valid[-1])
+        fault = np.zeros(n.shape[0], dtype=np.int8)
+        fault[rows[:, _LOST] > tol] = 2
+        fault[~valid & (idx - last_valid > tol)] = 1
+        vq = (n >= g.n_min) & (tra <= self._thr_a) & (trg <= self._thr_g)
+        q = vq & (fault == 0)
+        self._count_rejections(lo, vq, q, fault)
+        self._trim(lo, q, final=False)
+
+    def _count_rejections(self, lo: int, vq, q, fault) -> None:
+        """Count quiet pieces too short to keep, by why they are short.
+
+        A candidate is a run of quiet frames ignoring faults. If even the whole candidate is too
+        short, that is one "too_short". Otherwise each piece cut too short by a fault counts
+        under that fault ("invalid_status" or "sequence_gap").
+        """
+        g = self._geom
+        if vq.size == 0:
+            return
+        need = g.required + 2 * g.trim
+        # Runs of q (pieces) that close here, with the fault on their left and right.
+        q_st, q_en = _edges(self._prev_q, q)
+        left = np.where(q_st > 0, fault[np.maximum(q_st - 1, 0)], self._prev_fault)
+        starts, lefts = q_st + lo, left.astype(np.int64)
+        if self._q_open is not None:
+            starts = np.concatenate(([self._q_open[0]], starts))
+            lefts = np.concatenate(([self._q_open[1]], lefts))
+        closed = q_en.shape[0]
+        p_start, p_left = starts[:closed], lefts[:closed]
+        p_len = q_en + lo - p_start
+        p_right = fault[q_en].astype(np.int64)
+        self._q_open = (int(starts[-1]), int(lefts[-1])) if starts.shape[0] > closed else None
+        short = p_len < need
+        cause = np.where(p_left != 0, p_left, p_right)[short]
+        p_short_start = p_start[short]
+        # Candidates (runs of vq) and which one holds each short piece.
+        c_st, c_en = _edges(self._prev_vq, vq)
+        c_starts = c_st + lo
+        carried = self._c_open is not None
+        if carried:
+            c_starts = np.concatenate(([self._c_open], c_starts))
+        c_closed = c_en.shape[0]
+        c_len = c_en + lo - c_starts[:c_closed]
+        owner = np.searchsorted(c_starts, p_short_start, side="right") - 1
+        per_c = np.zeros((c_starts.shape[0], 3), dtype=np.int64)
+        np.add.at(per_c, (owner, cause), 1)
+        if carried:
+            per_c[0] += self._c_pending
+        rejected = self.report.rejected
+        long_c = c_len >= need
+        short_len = c_len[~long_c]
+        if short_len.size:
+            self.report.short_stretches += int(short_len.size)
+            longest = max(self.report.longest_short_frames, int(short_len.max()))
+            self.report.longest_short_frames = longest
+        rejected["too_short"] += int((~long_c).sum()) + int(per_c[:c_closed][long_c, 0].sum())
+        for kind, name in _FAULT_NAMES.items():
+            rejected[name] += int(per_c[:c_closed][long_c, kind].sum())
+        if short.any() or (~long_c).any() or self._c_pieces.shape[0]:
+            self._list_rejections(lo, q_en[short] + lo - 1, p_short_start, cause, owner,
+                                  c_starts, c_en + lo - 1, long_c, carried)  # fmt: skip
+        if c_starts.shape[0] > c_closed:
+            self._c_open, self._c_pending = int(c_starts[-1]), per_c[-1]
+        else:
+            self._c_open, self._c_pending = None, np.zeros(3, dtype=np.int64)
+        self._prev_vq, self._prev_q, self._prev_fault = bool(vq[-1]), bool(q[-1]), int(fault[-1])
+
+    def _list_rejections(self, lo, p_last, p_first, cause, owner, c_first, c_last, long_c, carried):
+        """The stretches behind the counts of :meth:`_count_rejections`, as session times.
+
+        Short pieces wait with their candidate (times taken now, while their frames are held):
+        they are listed under their fault once it closes long, else the candidate is one
+        too_short stretch.
+        """
+        rep = self.report
+        c_closed = c_last.shape[0]
+        short_c = np.flatnonzero(~long_c)
+        rep._add_stretches(self._times(c_first[short_c]), self._times(c_last[short_c]), "too_short")
+        pieces = np.column_stack((self._times(p_first), self._times(p_last), cause))
+        if carried:  # pieces of the candidate open before this call belong to owner 0
+            pieces = np.concatenate((self._c_pieces, pieces))
+            owner = np.concatenate((np.zeros(self._c_pieces.shape[0], dtype=owner.dtype), owner))
+        done = owner < c_closed
+        keep = np.zeros_like(done)
+        keep[done] = long_c[owner[done]]
+        names = np.array(["too_short", *_FAULT_NAMES.values()])
+        listed = pieces[keep]
+        rep._add_stretches(listed[:, 0], listed[:, 1], names[listed[:, 2].astype(int)])
+        self._c_pieces = pieces[~done]
+
+    def _times(self, index: np.ndarray) -> np.ndarray:
+        """Session times (s) of frame indices; a frame no longer held is placed by the rate."""
+        index = np.asarray(index, dtype=np.int64)
+        if index.size == 0:
+            return np.zeros(0)
+        k = np.clip(index - self._base, 0, self._data.shape[0] - 1)
+        held = self._data[k, _T] - self._t0
+        before = self._data[0, _T] - self._t0 - (self._base - index) / self._geom.rate
+        return np.where(index >= self._base, held, before)
+
+    def _trim(self, lo: int, q: np.ndarray, final: bool) -> None:
+        """Erode the pieces by the edge trim: frame j is kept when q holds on [j-T, j+T]."""
+        T = self._geom.trim
+        ext = np.concatenate((self._qhist, q))
+        ext_lo = self._next_m - T  # global index of ext[0]
+        hi = lo + q.shape[0]
+        if final:
+            ext = np.concatenate((ext, np.zeros(T, dtype=bool)))  # nothing after the end
+        else:
+            hi -= T
+        if hi <= self._next_m:
+            self._qhist = ext
+            return
+        loud = np.concatenate(([0], np.cumsum(~ext, dtype=np.int64)))
+        j = np.arange(self._next_m, hi) - ext_lo
+        m = (loud[j + T + 1] - loud[j - T]) == 0
+        d0 = self._next_m
+        self._next_m = hi
+        self._qhist = ext[hi - T - ext_lo : hi + T - ext_lo] if not final else ext[:0]
+        self._accumulate(d0, m, final)
+
+    def _accumulate(self, d0: int, m: np.ndarray, final: bool) -> None:
+        """Add kept frames [d0, d0 + len(m)) to running sums; finish the windows that close."""
+        rows = self._view(d0, d0 + m.shape[0])
+        st, en = _edges(self._prev_m, m)
+        piece = self._piece
+        if piece is not None and (en.shape[0] and en[0] == 0):
+            self._finish(piece)  # closed right at the chunk boundary
+            piece = None
+            en = en[1:]
+        sel = np.flatnonzero(m)
+        if sel.size:
+            cont = piece is not None  # the first segment continues the open piece
+            seg_starts = np.concatenate(([0], st)) if cont else st
+            seg_pos = np.searchsorted(sel, seg_starts)
+            seg_id = np.searchsorted(seg_starts, sel, side="right") - 1
+            first_rows = rows[seg_starts]
+            t_first = first_rows[:, _T].copy()
+            g_ref = first_rows[:, _G].copy()
+            a_ref = first_rows[:, _A].copy()
+            bad_ref = first_rows[:, _VALID] == 0  # an invalid first frame may hold garbage
+            g_ref[bad_ref], a_ref[bad_ref] = self._g_ref, self._a_ref
+            if cont:
+                t_first[0], g_ref[0], a_ref[0] = piece.t_first, piece.g_ref, piece.a_ref
+            prev_in = np.concatenate(([self._prev_m], m[:-1]))[sel]
+            feats = _piece_features(
+                rows[sel],
+                prev_in,
+                t_first[seg_id],
+                g_ref[seg_id],
+                a_ref[seg_id],
+                0.0 if math.isnan(self._temp_ref) else self._temp_ref,
+            )
+            sums = np.add.reduceat(feats, seg_pos, axis=0)
+            # Block sums for the Allan statistics: blocks aligned on the global frame index, so
+            # every chunking cuts them alike; a block counts once all its frames are kept.
+            B = self._geom.block
+            bid = (d0 + sel) // B
+            cut = np.ones(sel.shape[0], dtype=bool)
+            cut[1:] = (bid[1:] != bid[:-1]) | (seg_id[1:] != seg_id[:-1])
+            g_pos = np.flatnonzero(cut)
+            g_sums = np.add.reduceat(feats[:, _BLOCK_FEATS], g_pos, axis=0)
+            g_len = np.diff(g_pos, append=sel.shape[0])
+            g_of_seg = np.searchsorted(seg_id[g_pos], np.arange(seg_starts.shape[0] + 1))
+            ends = np.concatenate((en, [m.shape[0]])) if m[-1] else en
+            for k in range(seg_starts.shape[0]):
+                last = d0 + int(ends[k]) - 1
+                if k == 0 and cont:
+                    piece.sums = piece.sums + sums[0]
+                    piece.last, piece.t_last = last, float(rows[ends[k] - 1, _T])
+                else:
+                    piece = _Piece(
+                        first=d0 + int(seg_starts[k]),
+                        last=last,
+                        t_first=float(t_first[k]),
+                        t_last=float(rows[ends[k] - 1, _T]),
+                        g_ref=g_ref[k],
+                        a_ref=a_ref[k],
+                        sums=sums[k],
+                    )
+                closes = k < seg_starts.shape[0] - 1 or not m[-1]
+                gs = slice(g_of_seg[k], g_of_seg[k + 1])
+                _add_blocks(piece, bid[g_pos[gs]], g_len[gs], g_sums[gs], B, still_open=not closes)
+                if closes:
+                    self._finish(piece)
+                    piece = None
+        if final and piece is not None:
+            self._finish(piece)
+            piece = None
+        self._piece = piece
+        if m.size:
+            self._prev_m = bool(m[-1])
+
+    def _finish(self, piece: _Piece) -> None:
+        """Turn a closed trimmed run into a window, or count why it is rejected."""
+        g = self._geom
+        if piece.last - piece.first + 1 < g.required:
+            return  # already counted as a short piece when its quiet run closed
+        s = piece.sums
+        n = s[0]
+        rejected = self.report.rejected
+        span = (piece.t_first - self._t0, piece.t_last - self._t0)
+        if n < 2:
+            rejected["invalid_status"] += 1
+            self.report._add_stretches(*span, "invalid_status")
+            return
+        d_g, d_a = s[1:4] / n, s[7:10] / n
+        gyro = piece.g_ref + d_g
+        limit = self.config.gyro_rate_max
+        if limit is not None and float(np.linalg.norm(gyro - self._gyro_ref)) > limit:
+            rejected["rotating"] += 1
+            self.report._add_stretches(*span, "rotating")
+            return
+        var_g = np.maximum(s[4:7] - s[1:4] * d_g, 0.0) / (n - 1)
+        var_a = np.maximum(s[10:13] - s[7:10] * d_a, 0.0) / (n - 1)
+        kept = piece.last - piece.first + 1
+        allan_sq, allan_terms = _allan_sums(piece.blocks, g.block)
+        nt, st, stt, sv, stv = s[13:18]
+        temp, rate = math.nan, math.nan
+        if nt > 0:
+            temp = sv / nt + self._temp_ref
+            den = nt * stt - st * st
+            if nt >= 2 and den > 0:
+                rate = (nt * stv - st * sv) / den * 3600.0  # degC/s -> degC/h
+        t0 = self._t0
+        std = np.sqrt(np.concatenate((var_g, var_a)))
+        sem = _window_sem(int(n), std, allan_sq, allan_terms, g.block) if self._own_sem else None
+        self._out.append(
+            Window(
+                start_s=piece.t_first - t0,
+                end_s=piece.t_last - t0,
+                start_index=piece.first,
+                end_index=piece.last,
+                samples=int(n),
+                gyro=gyro,
+                accel=piece.a_ref + d_a,
+                gyro_std=std[:3],
+                accel_std=std[3:],
+                temperature_c=float(temp),
+                temperature_rate_c_per_h=float(rate),
+                frames_lost=int(s[19]),
+                frames_invalid=int(s[18]),
+                accel_mvar=float(s[20] / kept),
+                gyro_mvar=float(s[21] / kept),
+                block_frames=g.block,
+                allan_sq=allan_sq,
+                allan_terms=allan_terms,
+                gyro_sem=np.full(3, np.nan) if sem is None else sem[:3],  # its own samples
+                accel_sem=np.full(3, np.nan) if sem is None else sem[3:],
+            )
+        )
+
+        self.report.windows_kept += 1
+
+
+def _window_sem(n: int, std: np.ndarray, allan_sq, allan_terms, block: int) -> np.ndarray:
+    """(6,) standard errors of one window's means (gyro x y z, accel x y z) from its own
+    samples, correlated noise included (recal.detect.noise)."""
+    return _standard_errors(np.array([n]), std[None], [(allan_sq, allan_terms)], block)[0]
+
+
+def _edges(prev: bool, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Local indices where runs of True start, and where they end (first False after)."""
+    d = np.diff(mask.astype(np.int8), prepend=np.int8(prev))
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def _window_sums(f: np.ndarray, starts: tuple[int, int], W: int) -> np.ndarray:
+    """Sums of f over windows [a, a + W) for a in range(*starts), f starting block-aligned.
+
+    van Herk: blocks of W frames aligned on the global index; a window is the suffix sum of one
+    block plus the prefix sum of the next. The result depends only on the data of those two
+    blocks, never on how the stream was chunked, and never accumulates rounding over the stream.
+    """
+    nb = -(-f.shape[0] // W)
+    blocks = np.zeros((nb * W, f.shape[1]))
+    blocks[: f.shape[0]] = f
+    blocks = blocks.reshape(nb, W, f.shape[1])
+    prefix = np.cumsum(blocks, axis=1)
+    suffix = np.cumsum(blocks[:, ::-1], axis=1)[:, ::-1]
+    a = np.arange(*starts)
+    k, o = np.divmod(a, W)
+    out = suffix[k, o]
+    split = o > 0
+    out[split] += prefix[k[split] + 1, o[split] - 1]
+    return out
+
+
+def _piece_features(rows, prev_in, t_first, g_ref, a_ref, temp_ref: float) -> np.ndarray:
+    """Per kept frame, the terms whose sums give a window's means, variances and slope."""
+    w = rows[:, _VALID] > 0
+    f = np.zeros((rows.shape[0], _NFEAT))
+    dg = np.where(w[:, None], rows[:, _G] - g_ref, 0.0)
+    da = np.where(w[:, None], rows[:, _A] - a_ref, 0.0)
+    f[:, 0] = w
+    f[:, 1:4], f[:, 4:7] = dg, dg * dg
+    f[:, 7:10], f[:, 10:13] = da, da * da
+    temp = rows[:, _TEMP]
+    wt = w & np.isfinite(temp)
+    tau = np.where(wt, rows[:, _T] - t_first, 0.0)  # time from the window start, s
+    theta = np.where(wt, temp - temp_ref, 0.0)
+    f[:, 13], f[:, 14], f[:, 15] = wt, tau, tau * tau
+    f[:, 16], f[:, 17] = theta, tau * theta
+    f[:, 18] = ~w
+    f[:, 19] = np.where(prev_in, rows[:, _LOST], 0.0)  # a gap between two kept frames
+    f[:, 20], f[:, 21] = rows[:, _TRA], rows[:, _TRG]  # finite: every kept frame was quiet
+    return f
+
+
+#: Columns of _piece_features summed per block: valid count, gyro and accel relative values.
+_BLOCK_FEATS = [0, 1, 2, 3, 7, 8, 9]
+
+
+def _add_blocks(piece: _Piece, bid, count, sums, block: int, still_open: bool) -> None:
+    """Add one call's block groups (block ids, kept frames, summed _BLOCK_FEATS) to a piece."""
+    if bid.size == 0:
+        return
+    count = count.copy()
+    sums = sums.copy()
+    if piece.partial is not None and piece.partial[0] == bid[0]:
+        count[0] += int(piece.partial[1][0])
+        sums[0] += piece.partial[1][1:]
+    piece.partial = None
+    complete = count == block
+    if still_open and not complete[-1]:
+        piece.partial = (int(bid[-1]), np.concatenate(([count[-1]], sums[-1])))
+    if complete.any():
+        piece.blocks.append(sums[complete])
+
+
+def detect_static(
+    time_s: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    temperature_c: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+    lost_before: np.ndarray | None = None,
+    *,
+    config: DetectorConfig | None = None,
+) -> DetectionResult:
+    """Find the static windows of a whole recording (gyro and accel (N, 3), any units).
+
+    With no thresholds, no initial still period and no noise floor in ``config``, the noise
+    floor is first estimated from the recording itself (:func:`estimate_noise_floor`).
+    """
+    config = DetectorConfig() if config is None else config
+    if not config.has_thresholds:
+        floor = estimate_noise_floor(
+            time_s,
+            gyro,
+            accel,
+            valid,
+            window_s=config.window_s,
+            sample_rate_hz=config.sample_rate_hz,
+        )
+        config = replace(config, noise_floor=floor)
+    det = StaticDetector(config)
+    windows = det.feed(time_s, gyro, accel, temperature_c, valid, lost_before)
+    windows += det.flush()
+    return DetectionResult(windows=windows, report=det.report)

@@ -1,0 +1,1091 @@
+"""Calibration from static positions: the engine's one entry point.
+
+:func:`calibrate` takes a positions table and :class:`CalibrationOptions` and returns a
+:class:`CalibrationResult` holding the coefficients, the per-coefficient status ("estimated" or
+"held"), the Gauss-Newton 1-sigma, the MCS spread (swarm methods), the observability verdict and
+the residuals. The steps:
+
+1. models: the seed model per triad plus requested catalogue/plugin effects;
+2. prior: the previous calibration, or one derived from the data (common scale from the median
+   norm, everything else neutral);
+3. observability decided on real noise: with noise columns (*_sem, else *_std) at the prior;
+   without them structural rank only, an LM fit, the noise from its residuals, then the
+   decision -- never on the provisional sigma. Designs that cannot show scale and bias are
+   refused; rank decides, not counting, and an exactly determined design is estimated with a
+   note that the residual cannot check it;
+4. solve on the observable directions (LM; or MCS-NAFSA/SAFSA/OAFSA, optionally LM-polished);
+5. observability and covariance at the solution.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from recal.detect.slews import DEG_H_TO_RAD_S, TURN_CLOSURE_SIGMA_DEG, KnownRotations, Slews
+from recal.errors import RecalInputError
+from recal.model.coefficients import CoefficientSet, layout_like
+from recal.model.error_model import Model, ParameterLayout
+from recal.model.plugins import bind_context, plugin_file, values_by_term
+from recal.model.positions import Positions
+from recal.model.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.model.terms import Term, catalogue_terms
+from recal.solve.consider import consider_covariance, prior_sigma, sensor_class
+from recal.solve.convergence import fixed_point, swarm_convergence
+from recal.solve.lm import covariance, solve_lm
+from recal.solve.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
+from recal.solve.observability import (
+    COMMON_ROTATION_REASON,
+    INFO_MIN,
+    ROTATION_REASON,
+    ObservabilityReport,
+    analyze,
+    jacobian,
+)
+from recal.solve.phases import paper_phases, whitened_phase
+from recal.solve.problem import Problem
+from recal.solve.swarm import SwarmConfig
+
+METHODS = ("lm",) + SWARM_METHODS
+UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
+         "rotation": "rad", "closure": "rad"}  # fmt: skip
+#: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
+#: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
+#: so the FOG's 0.05 deg/h would call every bias such a gyro's windows can give "not seen".
+SLEW_GYRO_BIAS_TYPICAL_DPH = 10.0 * OMEGA_IE_DEG_H
+#: Typical relative change of the scale factors of a gyro that cannot see Earth rate: a MEMS
+#: gyro's datasheet scale tolerance is 1-3 % (131 counts/(deg/s) +- 2 %, say).
+SLEW_GYRO_SCALE_TYPICAL = 1e-2
+#: Typical misalignment of such a gyro, rad: a MEMS datasheet's cross-axis sensitivity of 1-2 %
+#: (a FOG's 1 mrad would hold what the slews pin to a few mrad).
+SLEW_GYRO_MISALIGNMENT_TYPICAL = 1e-2
+#: Typical g-sensitivity of such a gyro, deg/h per g: MEMS datasheets give 0.01-0.1 deg/s/g
+#: (36-360 deg/h/g); a FOG's 0.01 deg/h/g would call what the windows show "not seen".
+SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G = 0.01 * 3600.0
+
+
+#: What the Monte Carlo spread means (the JSON's mc.kind): each run on perturbed data ...
+MC_KIND = (
+    "spread over the Monte Carlo runs, each run fitted to the data perturbed by its window noise "
+    "(antithetic pairs): the measurement uncertainty plus the solver's own scatter, a check on "
+    "'uncertainty' (the Gauss-Newton 1-sigma, which the product reports)"
+)
+#: ... or, in paper mode, every run on the same data
+MC_KIND_PAPER = (
+    "spread over the Monte Carlo runs on the same data: solver repeatability, not measurement "
+    "uncertainty (see 'uncertainty')"
+)
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """What to calibrate and how.
+
+    sensor: "gyro", "accel", "both" or None (every triad present in the positions).
+    method: "lm" (default), "nafsa", "safsa" or "oafsa".
+    mc_runs: Monte Carlo repetitions for swarm methods (seed: 100).
+    paper: run swarms as the seeds do (category phases in raw coordinates, literal CF,
+        Table 1 Visual); default is the whitened joint phase over observable directions.
+    polish: follow a swarm by LM from its mean.
+    effects: extra terms by catalogue name; plugin_terms: user Term objects.
+    """
+
+    sensor: str | None = None
+    method: str = "lm"
+    mc_runs: int = 100
+    seed: int = 0
+    latitude_deg: float = 45.0
+    height_m: float = 0.0
+    prior: CoefficientSet | None = None
+    effects: Sequence[str] = ()
+    plugin_terms: Sequence[Term] = ()
+    paper: bool = False
+    polish: bool = False
+    swarm_config: SwarmConfig | None = None
+    #: swarm cycles (each re-whitens the phase and, with slews, re-linearises them at the runs'
+    #: mean); 4: with slews 3 left the MC mean ~1 sigma from the minimum (benchmarks/bench_mcs_slews)
+    cycles: int = 4
+    indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
+    t0_c: float = 25.0
+    slews: Slews | None = None  # gyro increments between the windows (recal.detect.slews), or None
+    known_rotations: KnownRotations | None = None  # commanded rotations of some slews
+    #: heading closure of a closed turn, deg (recal.detect.slews.find_closed_turns); <= 0: none assumed
+    turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG
+    #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
+    #: a missing effect can drag the baseline fit there, and the candidates must still be tried
+    refuse_at_solution: bool = True
+
+
+class HeldUncertainty(NamedTuple):
+    """The prior's 1-sigma that the held coefficients carry into ``CalibrationResult.covariance``."""
+
+    sensor_class: str  # which defaults a data-derived prior used (recal.solve.consider)
+    source: dict[str, str]  # term name -> where its prior sigma came from
+    sigma: np.ndarray  # (D,) prior 1-sigma per parameter
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
+
+
+@dataclass
+class CalibrationResult:
+    coefficients: CoefficientSet
+    status: dict[str, np.ndarray]  # term name -> array of "estimated"/"held"
+    uncertainty: dict[str, np.ndarray]  # term name -> 1-sigma (NaN where held)
+    covariance: np.ndarray  # (D, D) Gauss-Newton covariance of the flat parameters
+    observability: ObservabilityReport
+    problem: Problem
+    theta: np.ndarray
+    theta_prior: np.ndarray
+    chi2_red: float
+    method: str
+    evaluations: int
+    wall_time_s: float
+    prior_source: str
+    mcs: MCSResult | None = None
+    notes: list[str] = field(default_factory=list)
+    #: the window noise's part of ``covariance`` alone (``covariance`` adds the held part's)
+    covariance_measurement: np.ndarray | None = None
+    held_uncertainty: HeldUncertainty | None = None
+    #: {"converged": bool, "reason": str | None, ...} (recal.solve.convergence)
+    convergence: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def layout(self) -> ParameterLayout:
+        return self.problem.layout
+
+    @property
+    def terms(self) -> dict[str, Term]:
+        return {t.name: t for m in self.problem.models for t in m.terms}
+
+    def residual_summary(self) -> dict[str, Any]:
+        before = self.problem.raw_residuals(self.theta_prior[None])
+        after = self.problem.raw_residuals(self.theta[None])
+        ind_before = self.problem.indicator(self.theta_prior[None])
+        ind_after = self.problem.indicator(self.theta[None])
+        out = {}
+        for n in self.problem.invariant_names:
+            noise = self.problem.noise_known_for(n)
+            out[n] = {
+                "unit": UNITS[n],
+                "reference": self.problem.reference(n),
+                "rms_before": float(np.sqrt(np.mean(before[n] ** 2))),
+                "rms_after": float(np.sqrt(np.mean(after[n] ** 2))),
+                "noise_floor": float(np.sqrt(np.mean(self.problem.sigma[n] ** 2)))
+                if noise
+                else None,
+                "noise_source": self.problem.sigma_source.get(n),
+                "indicator_eq14_before": float(ind_before[n][0]),
+                "indicator_eq14_after": float(ind_after[n][0]),
+                "per_position": [float(v) for v in after[n][0]],
+            }
+            if n in ("gyro_norm", "dot") and self.problem.gyro_rows is not None:
+                # accelerometer-only windows (gyro not still) are left out: name the rows
+                out[n]["rows"] = [int(i) for i in self.problem.gyro_rows]
+            if n == "rotation":
+                out[n]["per_rotation"] = out[n].pop("per_position")
+                out[n]["rotations"] = self.problem.n_of(n) // 3
+                if noise:
+                    w = after[n][0] / self.problem.sigma[n]
+                    out[n]["chi2_red"] = float(np.mean(w * w))
+            if n == "closure":
+                turns = self.problem.closed_turns
+                assert turns is not None
+                out[n]["per_turn"] = out[n].pop("per_position")
+                out[n]["slews"] = [int(i) for i in turns.index]
+                out[n]["turns"] = [int(k) for k in turns.turns]
+                out[n]["closure_sigma_deg"] = float(np.degrees(turns.sigma_rad[0]))
+                if noise:
+                    w = after[n][0] / self.problem.sigma[n]
+                    out[n]["chi2_red"] = float(np.mean(w * w))
+            if n == "slew":
+                out[n]["per_slew"] = out[n].pop("per_position")
+                excess = float(self.problem.slew_excess_rad)
+                out[n]["unmodelled_excess_rad"] = excess
+                if noise and excess > 0:  # the floor above includes it: the windows' own too
+                    var = np.clip(self.problem.sigma[n] ** 2 - excess**2, 0, None)
+                    out[n]["window_noise_floor"] = float(np.sqrt(np.mean(var)))
+                out[n]["slews"] = self.problem.n_of(n) // 2
+                out[n]["earth_rate"] = (
+                    "removed with the first window's calibrated rest rate"
+                    if self.problem.slew_earth_rate
+                    else "left in, as noise (the gyro cannot see Earth rate)"
+                )
+                if noise:
+                    w = after[n][0] / self.problem.sigma[n]
+                    out[n]["chi2_red"] = float(np.mean(w * w))
+        return out
+
+    def uncertainty_kind(self) -> str:
+        """What the 1-sigma values mean, and which noise they come from."""
+        sources = ", ".join(sorted(set(self.problem.sigma_source.values())))
+        held = (
+            "; plus what the held coefficients' prior uncertainty moves them by (consider "
+            "covariance); a held coefficient's 1-sigma is its prior's"
+        )
+        if self.problem.noise_known:
+            return (
+                f"Gauss-Newton 1-sigma from the window noise ({sources}) propagated through the "
+                "invariants (scaled by max(1, chi2_red))" + held
+            )
+        if self.observability.redundancy == 0:
+            return "unknown: no noise columns and no redundancy to estimate the noise from"
+        return (
+            f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})"
+            + held
+        )
+
+    def to_json_dict(self) -> dict[str, Any]:
+        terms = self.terms
+        out: dict[str, Any] = {
+            "coefficients": self.coefficients.to_json_dict(terms),
+            "status": layout_like(self.status, str, terms),
+            "uncertainty": layout_like(
+                self.uncertainty, lambda v: None if not np.isfinite(v) else float(v), terms
+            ),
+            "uncertainty_kind": self.uncertainty_kind(),
+            "noise_source": dict(self.problem.sigma_source),
+            "observability": self.observability.to_json_dict(),
+            "residuals": self.residual_summary(),
+            "chi2_red": self.chi2_red if np.isfinite(self.chi2_red) else None,
+            "method": self.method,
+            "sensor": "both" if len(self.problem.sensors) == 2 else self.problem.sensors[0],
+            "positions": self.problem.M,
+            "latitude_deg": self.problem.latitude_deg,
+            "height_m": self.problem.height_m,
+            "gravity_g": self.problem.gravity_g,
+            "earth_rate_deg_h": OMEGA_IE_DEG_H,
+            "prior": self.prior_source,
+            "evaluations": self.evaluations,
+            "wall_time_s": self.wall_time_s,
+            "notes": self.notes,
+        }
+        if self.convergence:
+            out["converged"] = bool(self.convergence.get("converged"))
+            out["convergence"] = dict(self.convergence)
+        if self.held_uncertainty is not None:
+            out["held_uncertainty"] = self.held_uncertainty.to_json_dict()
+        if self.mcs is not None:
+            split = CoefficientSet.from_vector
+            out["mc"] = {
+                "runs": int(self.mcs.runs.shape[0]),
+                "cycles": self.mcs.cycles,
+                "mean": split(self.layout, self.mcs.mean).to_json_dict(terms),
+                "std": split(self.layout, self.mcs.std).to_json_dict(terms),
+                "kind": MC_KIND_PAPER if self.method.endswith("(paper mode)") else MC_KIND,
+            }
+        return out
+
+
+def build_models(
+    sensors: Sequence[str], effects: Sequence[str], plugin_terms: Sequence[Term], t0_c: float
+) -> tuple[Model, ...]:
+    """Seed models for ``sensors`` plus catalogue effects (by name) and plugin terms."""
+    catalogue = catalogue_terms(t0_c)
+    extra: list[Term] = []
+    for name in effects:
+        if name in catalogue:
+            extra.append(catalogue[name])
+        elif not any(t.name == name for t in plugin_terms):
+            known = ", ".join(sorted(catalogue) + [t.name for t in plugin_terms])
+            raise RecalInputError(f"unknown effect '{name}'; known effects: {known}")
+    # plugins are candidates for diagnose, never part of the model unless named in effects
+    extra += [t for t in plugin_terms if t.name in effects]
+    for t in extra:
+        if t.sensor not in sensors:
+            raise RecalInputError(f"effect {t.name} needs the {t.sensor} triad (--sensor)")
+    return tuple(Model.seed(s, [t for t in extra if t.sensor == s]) for s in sensors)
+
+
+def _plugin_metadata(layout: ParameterLayout) -> dict[str, Any]:
+    """{"plugins": {effect: file}} for the plugin effects in the model (a coefficients file
+    names what must be loaded to read it back), or nothing."""
+    files = {t.name: plugin_file(t) for t in layout.term_of()}
+    files = {n: f for n, f in files.items() if f is not None}
+    return {"plugins": files} if files else {}
+
+
+def ellipsoid_start(output: np.ndarray, reference: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per-axis scale (output/input unit) and bias (input units) from an axis-aligned
+    ellipsoid fit to the outputs: a x^2 + b y^2 + c z^2 + d x + e y + f z = 1 by least squares.
+
+    Returns None when the positions do not span the sphere well enough for the fit (then the
+    caller falls back to a common scale); the solver refines the result anyway.
+    """
+    if len(output) < 8:
+        return None
+    span = np.ptp(output, axis=0)
+    centre = output.mean(axis=0)
+    u = (output - centre) / np.where(span > 0, span, 1.0)  # conditioned coordinates
+    G = np.column_stack([u**2, u])
+    coef, *_ = np.linalg.lstsq(G, np.ones(len(u)), rcond=None)
+    sv = np.linalg.svd(G, compute_uv=False)
+    a, d = coef[:3], coef[3:]
+    if sv[-1] < 1e-6 * sv[0] or np.any(a <= 0):
+        return None
+    c = -d / (2 * a)
+    g = 1 + np.sum(a * c * c)
+    if g <= 0:
+        return None
+    radius = np.sqrt(g / a) * span  # semi-axes in output units
+    scale = radius / reference
+    bias = (centre + c * span) / scale
+    return scale, bias
+
+
+def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: float) -> np.ndarray:
+    """A prior from the data alone: scale and bias per axis from an ellipsoid fit of each triad's
+    outputs (a common scale from the median norm when the positions cannot support the fit);
+    misalignment and every other term neutral."""
+    theta = layout.neutral()
+    refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
+    slices = layout.term_slices()
+    for m in layout.models:
+        out = positions.gyro if m.sensor == "gyro" else positions.accel
+        fit = ellipsoid_start(out, refs[m.sensor])
+        if fit is None:
+            theta[slices[f"{m.sensor}.scale"]] = (
+                np.median(np.linalg.norm(out, axis=1)) / refs[m.sensor]
+            )
+        else:
+            theta[slices[f"{m.sensor}.scale"]] = fit[0]
+            theta[slices[f"{m.sensor}.bias"]] = fit[1]
+    return theta
+
+
+def describe_prior(
+    positions: Positions,
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    lat: float,
+    h: float,
+    given: CoefficientSet | None = None,
+    gyro_from_slews: bool = False,
+) -> str:
+    """What the prior ``theta0`` is, true to its values: the given file and the terms it lacks
+    (taken from the data), how each triad's scale and bias were derived from the data (an
+    ellipsoid fit, or a common scale from the median norm when the positions cannot support
+    one; the slews for a gyro blind to Earth rate), and which other terms start at zero."""
+    slices = layout.term_slices()
+    from_data = [t for m in layout.models for t in m.terms
+                 if given is None or given.values.get(t.name) is None]  # fmt: skip
+    parts = []
+    refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
+    for m in layout.models:
+        if not any(t.name in (f"{m.sensor}.scale", f"{m.sensor}.bias") for t in from_data):
+            continue
+        if m.sensor == "gyro" and gyro_from_slews:
+            how = "common scale from the slews, bias the mean window output"
+        elif ellipsoid_start(positions.gyro if m.sensor == "gyro" else positions.accel,
+                             refs[m.sensor]) is None:  # fmt: skip
+            how = "common scale from the median norm, bias zero (no ellipsoid fit: too few or too alike positions)"
+        else:
+            how = "scale and bias from an ellipsoid fit"
+        parts.append(f"{m.sensor}: {how}")
+    zero = [t.name for t in from_data if t.group not in ("scale", "bias")
+            and np.all(theta0[slices[t.name]] == np.asarray(t.neutral, float))]  # fmt: skip
+    if zero:
+        parts.append(f"{', '.join(zero)} zero")
+    other = [t.name for t in from_data if t.group not in ("scale", "bias") and t.name not in zero]
+    if other:
+        parts.append(f"{', '.join(other)} from the data")
+    if given is None:
+        return f"data-derived ({'; '.join(parts)})"
+    source = str(given.metadata.get("source", "given prior"))
+    return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
+
+
+#: A held coefficient that moved by less than this share of its 1-sigma is not worth naming.
+HELD_MOVE_SIGMA = 0.1
+
+
+def held_moved(
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    theta: np.ndarray,
+    report: ObservabilityReport,
+    sd: np.ndarray,
+) -> str | None:
+    """A note naming the held coefficients whose value moved off the prior by at least
+    :data:`HELD_MOVE_SIGMA` of their 1-sigma ``sd``: a coefficient is held when less than half
+    of it lies in the observable directions, but the part that does moves with the estimated
+    combinations. None when no held value moved that much."""
+    moved = [
+        f"{n} {theta0[i]:.6g} -> {theta[i]:.6g} ({(theta[i] - theta0[i]) / sd[i]:+.2g} sigma; "
+        f"{100 * report.share[i]:.2g} % of it observable)"
+        for i, n in enumerate(layout.names)
+        if not report.estimated[i]
+        and abs(theta[i] - theta0[i]) >= HELD_MOVE_SIGMA * sd[i]
+        and not np.isclose(theta[i], theta0[i], rtol=1e-9, atol=0)
+    ]
+    if not moved:
+        return None
+    return (
+        "held coefficients that moved off the prior with the estimated combinations they "
+        f"share: {'; '.join(moved)}"
+    )
+
+
+#: Position-to-position spread of the gyro outputs, in window-noise units, below which Earth
+#: rate is not visible (a navigation FOG shows thousands, a KVH-class FOG hundreds; the MEMS
+#: recording in ../shared shows 25, from bias instability, not Earth rate).
+MIN_EARTH_RATE_CONTRAST = 50.0
+
+
+def scale_noise_needed(n_positions: int, relative: float = 1e-3) -> float:
+    """Window-mean gyro noise, deg/h, that pins each scale factor to ``relative`` from
+    ``n_positions`` random orientations.
+
+    d|w|/d(ln K_i) = -Omega u_i^2; for uniform directions the information matrix
+    (Omega / sigma)^2 sum u_i^2 u_j^2 has an inverse diagonal of 6 / M, so
+    sd(ln K_i) ~ sigma / Omega * sqrt(6 / M). Estimating bias and misalignment alongside costs
+    about a factor 2 (checked against :func:`recal.solve.observability.analyze`), hence sqrt(M / 24).
+    """
+    return relative * OMEGA_IE_DEG_H * np.sqrt(n_positions / 24.0)
+
+
+def _earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None) -> str | None:
+    """Why Earth rate cannot calibrate this gyro, or None: the outputs must change with
+    orientation well beyond the window-mean noise.
+
+    The reason names the cause -- the contrast, the noise and the hold length -- and what would
+    be needed: the noise of a window mean falls as 1/sqrt(hold) (white noise), so the contrast
+    grows as sqrt(hold). ``scale`` (output units per deg/h, e.g. from the prior) expresses the
+    noise in deg/h and gives the hold that pins the scale factors to their typical change;
+    without it the noise stays in output units.
+    """
+    seen = positions.gyro_contrast()
+    if seen is None:
+        return None
+    contrast, axis = seen
+    sem = np.maximum(np.median(positions.std_of_mean("gyro"), axis=0), 1e-300)
+    if contrast >= MIN_EARTH_RATE_CONTRAST:
+        return None
+    gain = 1.0 if scale is None else abs(float(np.asarray(scale, float)[axis]))
+    unit = "output units" if scale is None else "deg/h"
+    noise_in = sem[axis] / gain
+    cols = positions.columns
+    hold = (
+        float(np.median(cols["end_s"] - cols["start_s"]))
+        if "start_s" in cols and "end_s" in cols
+        else None
+    )
+
+    def holds_for(factor: float) -> str:  # white noise: sigma ~ 1/sqrt(hold)
+        return (
+            f"holds about {factor:.3g}x longer"
+            if hold is None
+            else f"holds of about {hold * factor:.3g} s"
+        )
+
+    M = len(positions)
+    pinned = scale_noise_needed(M)
+    visible = holds_for((MIN_EARTH_RATE_CONTRAST / contrast) ** 2)
+    then = f"pinning the scale factors to 1000 ppm from {M} positions then needs a window-mean noise of about {pinned:.2g} deg/h"
+    if scale is not None:
+        then += f" ({holds_for((noise_in / pinned) ** 2)})"
+    caveat = (
+        " if the noise averages down" if positions.noise_source("gyro") == "sem columns" else ""
+    )
+    return (
+        f"gyro outputs differ between positions by only {contrast:.3g}x the window-mean noise "
+        f"({noise_in:.3g} {unit}" + ("" if hold is None else f" from {hold:.3g} s holds") + "): "
+        f"Earth rate ({OMEGA_IE_DEG_H:.5f} deg/h) is not visible; it needs "
+        f"{MIN_EARTH_RATE_CONTRAST:.0f}x: {visible} at this noise{caveat}; {then}"
+    )
+
+
+def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...]:
+    if sensor in (None, "auto"):
+        found = tuple(s for s in ("gyro", "accel") if getattr(positions, f"has_{s}"))
+        return found
+    if sensor == "both":
+        return ("gyro", "accel")
+    if sensor in ("gyro", "accel"):
+        return (sensor,)
+    raise RecalInputError(f"--sensor must be gyro, accel or both, not {sensor!r}")
+
+
+def _decided(report: ObservabilityReport, when: str = "") -> ObservabilityReport:
+    """``report``, or :class:`RecalInputError` when nothing at all can be estimated
+    (docs/reference.md#cli). A design that cannot show some scale factors or biases is a
+    partial success: those are held at the prior with its uncertainty, the verdict stays
+    "insufficient" (a gate can refuse to publish it) and a note says so
+    (:func:`_observability_notes`)."""
+    if report.verdict == "insufficient" and report.rank == 0:
+        where = f" {when}" if when else ""
+        raise RecalInputError(f"unusable design{where}: nothing can be estimated: {report.message}")
+    return report
+
+
+def _same_span(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
+    """True when the orthonormal column sets ``a`` and ``b`` span the same subspace."""
+    if a.shape != b.shape:
+        return False
+    return bool(np.all(np.linalg.svd(a.T @ b, compute_uv=False) > 1 - tol)) if a.size else True
+
+
+def _excess_note(
+    problem: Problem, theta: np.ndarray, T: np.ndarray, chi2_red: float, method: str
+) -> str:
+    """Why chi2_red exceeds 4. A swarm (above all with --paper) may stop short of the minimum:
+    LM from its solution tells a solver that stopped early from a model that lacks an effect."""
+    if method != "lm" and T.shape[1]:
+        lm = solve_lm(problem, theta, T)
+        _, chi2_lm = covariance(problem, lm.theta, T)
+        if chi2_lm <= 2.0:
+            return (
+                f"chi2_red = {chi2_red:.1f}: the {method} solution stopped short of the minimum; "
+                f"LM from it fits these windows to the noise (chi2_red {chi2_lm:.2f}), so no "
+                "effect is missing: use --method lm (or --polish) rather than recal diagnose"
+            )
+    return (
+        f"chi2_red = {chi2_red:.1f}: residuals exceed the window noise; an effect may be "
+        "missing from the model (try `recal diagnose`)"
+    )
+
+
+def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[str]:
+    """What the user must know about what was held and whether the fit can be checked."""
+    notes = []
+    if report.verdict == "insufficient":
+        notes.append(
+            f"partial calibration: {report.message}; what the data do not show of them is "
+            "held at the prior with its uncertainty (a coefficient less than 25 % seen is "
+            "'held'), the rest is estimated"
+        )
+    reasons: dict[str, list[str]] = {}
+    for d, r in zip(report.held_directions, report.held_reasons, strict=True):
+        reasons.setdefault(r, []).append(d)
+    for r, dirs in reasons.items():
+        if r == COMMON_ROTATION_REASON:
+            # the relative frame is estimated only when none of its rotations is held as well
+            weak = any(q.startswith("a rotation of the gyro frame") for q in reasons)
+            head = (
+                "with slews the gyro frame could be estimated relative to the accelerometer "
+                "frame, but here the slews pin it down too weakly (below)"
+                if weak
+                else "with slews the gyro frame is estimated relative to the accelerometer frame"
+            )
+            notes.append(
+                f"{head}; {r} ({len(dirs)} direction(s): {'; '.join(dirs)}); an outside "
+                "reference of known rotations would show it"
+            )
+        elif r != ROTATION_REASON:  # the rotations are expected and listed in observability
+            notes.append(f"held at the prior ({len(dirs)} direction(s): {'; '.join(dirs)}): {r}")
+    if report.redundancy == 0:
+        notes.append(
+            f"exactly determined: {problem.n_residuals} invariant equations for {report.rank} "
+            "observable directions, so the fit makes every residual zero and the residual "
+            "cannot check it; add positions to check the fit"
+        )
+    return notes
+
+
+def _usable_slews(positions: Positions, opt: CalibrationOptions, notes: list[str]) -> Slews | None:
+    """The slews of ``opt`` when they belong to these positions, else None (with a note)."""
+    slews = opt.slews
+    if slews is None:
+        return None
+    if slews.n_dropped:
+        reasons = ", ".join(f"{k} {v}" for k, v in slews.dropped.items() if v)
+        notes.append(
+            f"{slews.n_dropped} slew(s) dropped: they cannot be integrated ({reasons}); their "
+            "windows still serve as positions"
+        )
+    cols = positions.columns
+    why = (
+        "the positions have no start_s/end_s columns"
+        if "start_s" not in cols or "end_s" not in cols
+        else slews.mismatch(cols["start_s"], cols["end_s"])
+    )
+    if why:
+        notes.append(f"slews not used: {why}")
+        return None
+    return slews if len(slews) else None
+
+
+def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
+    """A gyro prior from the slews for a gyro that cannot see Earth rate: a common scale factor
+    by a batched search on the slew residuals (a coarse log grid over a decade either side of
+    the ratio of raw integrated output to the gravity-direction change, both signs, then a fine
+    one), the bias the mean window output over that scale, misalignment zero."""
+    slews = problem.slews
+    assert slews is not None
+    sl = problem.layout.term_slices()
+    theta = np.array(theta0, float)
+    theta[sl["gyro.misalignment"]] = 0.0
+    n0 = problem.positions.gyro.mean(axis=0)  # zero-rate output: Earth rate is below the noise
+    f = problem.physical(theta[None])["accel"][0]
+    u = f / np.linalg.norm(f, axis=1, keepdims=True)
+    seen = np.arccos(np.clip(np.sum(u[slews.first] * u[slews.second], axis=1), -1, 1))
+    raw = np.linalg.norm(slews.sums.sum(axis=1), axis=1)  # output units x s
+    big = seen > 0.2
+    ratio = raw[big] * DEG_H_TO_RAD_S / seen[big] if big.any() else raw * DEG_H_TO_RAD_S
+    centre = float(np.median(ratio)) if ratio.size and np.median(ratio) > 0 else 1.0
+
+    def best(scales: np.ndarray) -> float:
+        cand = np.repeat(theta[None], scales.size, axis=0)
+        cand[:, sl["gyro.scale"]] = scales[:, None]
+        cand[:, sl["gyro.bias"]] = n0[None] / scales[:, None]
+        r = problem.raw_residuals(cand)["slew"]
+        cost = np.where(np.isfinite(r).all(axis=1), np.sum(r * r, axis=1), np.inf)
+        return float(scales[int(np.argmin(cost))])
+
+    coarse = centre * np.exp(np.linspace(-np.log(10.0), np.log(10.0), 241))
+    k = best(np.concatenate([coarse, -coarse]))
+    k = best(k * np.exp(np.linspace(-0.03, 0.03, 121)))
+    theta[sl["gyro.scale"]] = k
+    theta[sl["gyro.bias"]] = n0 / k
+    return theta
+
+
+def blind_gyro_models(
+    models: tuple[Model, ...], layout: ParameterLayout, theta: np.ndarray
+) -> tuple[Model, ...]:
+    """The models with the gyro's typical changes set for a gyro blind to Earth rate (a MEMS
+    gyro calibrated from slews): the scale's at least :data:`SLEW_GYRO_SCALE_TYPICAL` (its
+    datasheet tolerance: a scale the data pin to 0.5 % is worth estimating although a FOG's
+    1000 ppm would call it unseen), the bias's max(10 x Earth rate, the scale's typical relative
+    change x |b|). The second term because such a gyro's zero-rate output is large against
+    Earth rate: a relative scale change moves the input-referred bias b by as much of it, and
+    the two must be judged on one footing. The misalignment and a g-sensitivity in the model
+    get a MEMS's typical sizes too (:data:`SLEW_GYRO_MISALIGNMENT_TYPICAL`,
+    :data:`SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G`)."""
+    sl = layout.term_slices()
+    scale = next(t for m in models for t in m.terms if t.name == "gyro.scale")
+    rel = np.maximum(np.asarray(scale.typical, float), SLEW_GYRO_SCALE_TYPICAL)
+    typ = np.maximum(SLEW_GYRO_BIAS_TYPICAL_DPH, rel * np.abs(theta[sl["gyro.bias"]]))
+    mis = next(t for m in models for t in m.terms if t.name == "gyro.misalignment")
+    new = {"gyro.bias": typ, "gyro.scale": rel,
+           "gyro.misalignment": np.maximum(mis.typical, SLEW_GYRO_MISALIGNMENT_TYPICAL)}  # fmt: skip
+    if "gyro.g_sensitivity" in sl:
+        g = next(t for m in models for t in m.terms if t.name == "gyro.g_sensitivity")
+        new["gyro.g_sensitivity"] = np.maximum(g.typical, SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G)
+    return tuple(
+        Model(m.sensor, tuple(
+            replace(t, typical=tuple(float(v) for v in new[t.name])) if t.name in new else t
+            for t in m.terms))
+        for m in models
+    )  # fmt: skip
+
+
+def blind_gyro(models: Sequence[Model]) -> bool:
+    """Whether these models were sized for a gyro blind to Earth rate (:func:`blind_gyro_models`)."""
+    bias = next((t for m in models for t in m.terms if t.name == "gyro.bias"), None)
+    return bias is not None and min(bias.typical) >= SLEW_GYRO_BIAS_TYPICAL_DPH
+
+
+class _SetUp(NamedTuple):
+    """What a calibration starts from (shared by :func:`calibrate` and :func:`check_design`)."""
+
+    sensors: tuple[str, ...]
+    notes: list[str]
+    layout: ParameterLayout
+    theta0: np.ndarray  # the prior, (D,)
+    prior_source: str
+    problem: Problem
+    typical: np.ndarray  # typical change per parameter, (D,)
+
+
+def _slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: float) -> bool:
+    """Whether Earth's turn over a slew is better taken out with the calibrated rest rate of its
+    first window than left in the slew's noise budget: the window-mean gyro noise (deg/h, at the
+    prior scale ``scale`` output/(deg/h), else the output noise over the median output norm in
+    units of Earth rate) against the horizontal Earth rate it would remove (variances per
+    component: sem^2 against (Omega cos(lat))^2 / 2, :func:`recal.detect.slews.slew_sigma`). Decided
+    by the two error budgets, not by a contrast threshold; without noise columns the rest rate
+    is used (a gyro without noise columns is judged on its residuals later)."""
+    noise = positions.std_of_mean("gyro")
+    if noise is None:
+        return True
+    sem = np.median(noise, axis=0)
+    if scale is not None:
+        sem_dph = sem / np.maximum(np.abs(np.asarray(scale, float)), 1e-300)
+    else:  # output units: the prior's common scale is the median norm over Earth rate
+        gain = np.median(np.linalg.norm(positions.gyro, axis=1)) / OMEGA_IE_DEG_H
+        sem_dph = sem / max(gain, 1e-300)
+    horizontal = OMEGA_IE_DEG_H * np.cos(np.radians(lat))
+    return bool(np.mean(sem_dph**2) < horizontal**2 / 2.0)
+
+
+#: Slews whose reduced chi2 exceeds 1 by this many of its standard errors (sqrt(2 / n)) carry an
+#: unmodelled per-slew error, estimated from their misfit (:func:`slew_excess`).
+SLEW_EXCESS_SIGNIFICANCE = 3.0
+
+
+def slew_excess(problem: Problem, theta0: np.ndarray, typical: np.ndarray) -> tuple[float, float]:
+    """(excess, chi2_red of the slews before it): the unmodelled error per slew residual, rad,
+    that makes the slews' chi2_red 1 at the fit, by the method of moments, iterated with the fit
+    (3 rounds at most), or 0 when the slews fit to their window noise within
+    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors.
+
+    Why: on a real hand-turned MEMS session (imucal's Ferraris example) the face flips misfit by
+    3-30 mrad against a noise floor of 0.3 mrad whatever the linear gyro model, while the closed
+    turns fit; weighted by the window noise alone the flips would decide the scale factors and
+    outweigh the turns 10:1. The excess gives each slew the weight its scatter allows."""
+    if problem.slews is None or not problem.noise_known_for("slew"):
+        return 0.0, float("nan")
+    n = problem.n_of("slew")
+    base = problem.sigma["slew"]
+    theta, excess, chi2_first = theta0, 0.0, float("nan")
+    prob = problem
+    # the directions the window noise lets the slews see, kept through the rounds (judged
+    # again on the inflated noise, fewer are seen, the misfit grows and the excess runs away)
+    T = typical[:, None] * analyze(prob, theta0, typical).basis
+    for _ in range(4):
+        lm = solve_lm(prob, theta0, T)
+        theta = lm.theta
+        r = prob.raw_residuals(theta[None])["slew"][0]
+        chi2 = float(np.mean((r / np.sqrt(base**2 + excess**2)) ** 2))
+        if np.isnan(chi2_first):
+            chi2_first = chi2
+            if chi2 < 1.0 + SLEW_EXCESS_SIGNIFICANCE * np.sqrt(2.0 / n):
+                return 0.0, chi2_first
+        new = float(np.sqrt(max(np.mean(r**2 - base**2), 0.0)))
+        if abs(new - excess) <= 0.1 * max(new, 1e-300):
+            excess = new
+            break
+        excess = new
+        prob = replace(prob, slew_excess_rad=excess).at(theta0)
+    return excess, chi2_first
+
+
+def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
+    """What the static windows (gyro norm, dot product: Earth rate) and the motion (slews,
+    closed turns, known rotations) each tell about the gyro scale factors: their 1-sigma, ppm,
+    from each alone and together (Fisher information at ``theta``, every other coefficient
+    estimated alongside), or None without slews."""
+    sl = problem.layout.term_slices().get("gyro.scale")
+    if sl is None or problem.slews is None:
+        return None
+    J = jacobian(problem, theta, np.diag(typical))  # (R, D), typical-scaled
+    rows, start = {}, 0
+    for n in problem.invariant_names:
+        rows[n] = np.arange(start, start + problem.n_of(n))
+        start += problem.n_of(n)
+    empty = np.zeros(0, dtype=int)
+    static = np.concatenate([rows.get(n, empty) for n in ("gyro_norm", "accel_norm", "dot")])
+    motion = np.concatenate([rows.get(n, empty) for n in ("accel_norm", "slew", "closure",
+                                                           "rotation")])  # fmt: skip
+    idx = np.arange(problem.layout.size)[sl]
+    rel = typical[idx] / np.maximum(np.abs(theta[idx]), 1e-300)  # typical -> relative
+
+    def sd_ppm(r: np.ndarray) -> str:
+        # a weak prior (100 typical changes) keeps unseen directions finite and makes adding
+        # rows never raise a 1-sigma
+        cov = np.linalg.inv(J[r].T @ J[r] + 1e-4 * np.eye(J.shape[1]))
+        sd = np.sqrt(np.clip(np.diag(cov)[idx], 0, None))
+        return "/".join("not seen" if v > 10 else f"{v * w * 1e6:.3g}" for v, w in zip(sd, rel))
+
+    return (
+        "gyro scale 1-sigma (x/y/z, ppm, window noise only) from Earth rate in the still "
+        f"windows alone: {sd_ppm(static)}; from the slews alone: {sd_ppm(motion)}; together: "
+        f"{sd_ppm(np.arange(J.shape[0]))} (one fit, each weighted by its own noise)"
+    )
+
+
+def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
+    """Sensors, notes, layout, prior theta0, its source, the Problem and typical changes.
+
+    With slews and both triads the gyro is calibrated from the static invariants (Earth rate)
+    and the slews together, each weighted by its own noise: a MEMS gyro's Earth-rate
+    information then carries little weight without any threshold deciding. Earth's turn over
+    a slew is taken out or left in the noise by comparing the two error budgets
+    (:func:`_slews_see_earth_rate`). Without slews a gyro whose outputs do not show Earth rate
+    (:func:`_earth_rate_invisible`) is left out by default.
+    """
+    sensors = _resolve_sensors(positions, opt.sensor)
+    notes: list[str] = []
+    slews = _usable_slews(positions, opt, notes) if positions.has_gyro else None
+    prior_scale = opt.prior.values.get("gyro.scale") if opt.prior is not None else None
+    problem_gyro = _earth_rate_invisible(positions, prior_scale) if "gyro" in sensors else None
+    with_slews = slews is not None and positions.has_accel and "gyro" in sensors
+    if with_slews and opt.sensor == "gyro":
+        if problem_gyro:
+            raise RecalInputError(
+                problem_gyro + "; the slews could calibrate it with the accelerometers: leave "
+                "--sensor out or use --sensor both"
+            )
+        with_slews = False
+    if with_slews:
+        sensors = ("gyro", "accel")
+    elif problem_gyro and opt.sensor in (None, "auto") and "accel" in sensors:
+        sensors = ("accel",)  # the default calibrates what the data can show
+        notes.append(f"gyro not calibrated: {problem_gyro}")
+    elif problem_gyro:
+        raise RecalInputError(problem_gyro + "; use --sensor accel")
+    if slews is not None and set(sensors) != {"gyro", "accel"}:
+        notes.append("slews not used: they need both triads calibrated together")
+        slews = None
+    models = build_models(sensors, opt.effects, opt.plugin_terms, opt.t0_c)
+    layout = ParameterLayout(models)
+    if opt.prior is not None:
+        theta_data = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
+        fallback = {n: theta_data[sl] for n, sl in layout.term_slices().items()}
+        theta0 = opt.prior.to_vector(layout, fallback)
+    else:
+        theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
+    # plugin terms may need site quantities or extra columns: bound to these positions here
+    models = bind_context(models, positions, values_by_term(layout, theta0), opt.latitude_deg,
+                          opt.height_m, with_slews=slews is not None)  # fmt: skip
+    layout = ParameterLayout(models)
+    excess, earth_rate, blind = 0.0, True, False
+
+    def build(theta: np.ndarray) -> Problem:
+        if blind:  # the bias's typical change for a gyro blind to Earth rate
+            nonlocal models, layout
+            models = blind_gyro_models(models, layout, theta)
+            layout = ParameterLayout(models)
+        return Problem.build(
+            positions, models, opt.latitude_deg, opt.height_m, theta,
+            slews=slews, slew_earth_rate=earth_rate, known_rotations=opt.known_rotations,
+            turn_closure_sigma_deg=opt.turn_closure_sigma_deg, slew_excess_rad=excess,
+        )  # fmt: skip
+
+    if slews is not None:
+        # Earth's turn over the slews: taken out where a window mean measures Earth rate better
+        # than leaving it in (a FOG), else left in with the zero rate from the two windows (a
+        # MEMS gyro). The gyro's scale for that judgement: the prior's, else the slews' own
+        # (a MEMS gyro's output norm at rest is its bias, not Earth rate)
+        earth_rate = False
+        from_slews = slew_prior(build(theta0), theta0)
+        scale = (
+            prior_scale
+            if prior_scale is not None
+            else from_slews[layout.term_slices()["gyro.scale"]]
+        )
+        # a gyro whose window means do not follow Earth rate (bias wander, problem_gyro) is
+        # treated as blind to it even when its white noise alone would allow it
+        earth_rate = not problem_gyro and _slews_see_earth_rate(positions, scale, opt.latitude_deg)
+        blind = not earth_rate
+        if blind:
+            notes.append(
+                f"gyro calibrated from the still windows and {len(slews)} slews in one fit: "
+                "Earth rate is below the window-mean gyro noise, so Earth's turn over each slew "
+                "is left in its noise, the zero rate over a slew is the mean output of its two "
+                "windows, and the bias's typical change is taken as the larger of "
+                f"{SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h and 1000 ppm of the bias"
+            )
+            if opt.prior is None:
+                theta0 = from_slews
+    problem = build(theta0)
+    typical = layout.typical(theta0)
+    if slews is not None:
+        notes.append(
+            f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
+            f"included; {np.median(slews.duration_s):.3g} s median)"
+        )
+        turns = problem.closed_turns
+        if turns is not None:
+            notes.append(
+                f"{len(turns)} closed turn(s) found and assumed (slews "
+                f"{', '.join(str(int(i)) for i in turns.index)}: gravity returns to where it "
+                f"was while the gyro turns {', '.join(f'{int(k):+d}' for k in turns.turns)} "
+                f"x 360 deg about the vertical): each taken as exactly whole turns, heading "
+                f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (--turn-closure)"
+            )
+        excess, chi2_slews = slew_excess(problem, theta0, typical)
+        if excess > 0:
+            plain, problem = problem, build(theta0)
+            if (
+                problem.noise_known
+                and analyze(problem, theta0, typical).verdict == "insufficient"
+                and analyze(plain, theta0, typical).verdict != "insufficient"
+            ):
+                notes.append(
+                    f"the slews misfit beyond their window noise (slew chi2_red "
+                    f"{chi2_slews:.3g}); an unmodelled error of {excess * 1e3:.3g} mrad per "
+                    "slew residual would leave scale or bias unseen, so they keep the window "
+                    "noise as their weight and the misfit scales the 1-sigma instead"
+                )
+                excess, problem = 0.0, plain
+        if excess > 0:
+            notes.append(
+                f"the slews misfit beyond their window noise (slew chi2_red {chi2_slews:.3g} "
+                f"at the first fit): an unmodelled error of {excess * 1e3:.3g} mrad per slew "
+                "residual, estimated from their misfit, is added to their noise so each slew "
+                "carries the weight its scatter allows (recal diagnose lists the worst slews)"
+            )
+        shares = _information_shares(problem, theta0, typical)
+        if shares:
+            notes.append(shares)
+    prior_source = describe_prior(positions, layout, theta0, opt.latitude_deg, opt.height_m,
+                                  opt.prior, gyro_from_slews=blind and opt.prior is None)  # fmt: skip
+    return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical)
+
+
+def check_design(
+    positions: Positions, options: CalibrationOptions | None = None, partial_ok: bool = True
+) -> None:
+    """Raise :class:`RecalInputError` when ``calibrate`` would refuse these positions for their
+    design (nothing can be estimated), or, with ``partial_ok`` False, when it could only give a
+    partial calibration (some scale factor or bias not separable: a gate does not publish it):
+    at the prior, on the window noise when the positions carry it, else on structural rank
+    alone (the decision on the estimated noise needs a fit). Cheap, so a service can answer a
+    trigger with the reason."""
+    opt = options or CalibrationOptions()
+    su = _set_up(positions, opt)
+    info_min = INFO_MIN if su.problem.noise_known else 0.0
+    report = _decided(analyze(su.problem, su.theta0, su.typical, info_min=info_min))
+    if not partial_ok and report.verdict == "insufficient":
+        raise RecalInputError(f"only a partial calibration: {report.message}")
+
+
+def calibrate(
+    positions: Positions,
+    options: CalibrationOptions | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> CalibrationResult:
+    """Recalibrate from static positions. Raises :class:`RecalInputError` for unusable input."""
+    opt = options or CalibrationOptions()
+    t_start = time.perf_counter()
+    if opt.method not in METHODS:
+        raise RecalInputError(f"--method must be one of {', '.join(METHODS)}, not {opt.method!r}")
+    if opt.method != "lm" and opt.mc_runs < 1:
+        raise RecalInputError("--mc must be at least 1")
+    if not -90 <= opt.latitude_deg <= 90:
+        raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
+    sensors, notes, layout, theta0, prior_source, problem, typical = _set_up(positions, opt)
+    evaluations = 0
+    theta_fit: np.ndarray | None = None  # an LM optimum on report.basis, when one exists
+    if problem.noise_known:
+        report = _decided(analyze(problem, theta0, typical))
+    else:
+        # Noise first: the provisional sigma is no noise information, so judge structural rank
+        # only, fit, estimate the noise from the residuals, and decide on that.
+        structural = _decided(analyze(problem, theta0, typical, info_min=0.0))
+        if structural.redundancy > 0:
+            lm = solve_lm(problem, theta0, typical[:, None] * structural.basis)
+            evaluations += lm.evaluations
+            problem = problem.with_sigma_from_residuals(lm.theta, structural.rank)
+            report = _decided(analyze(problem, lm.theta, typical), "on the estimated noise")
+            if len(problem.invariant_names) == 1 and _same_span(report.basis, structural.basis):
+                theta_fit = lm.theta  # a uniform sigma rescales chi2 but cannot move the optimum
+        else:
+            report = structural  # no redundancy: the noise cannot be estimated
+    mcs = None
+    T = typical[:, None] * report.basis
+    if opt.method == "lm":
+        if theta_fit is None:
+            lm = solve_lm(problem, theta0, T)
+            theta_fit, evaluations = lm.theta, evaluations + lm.evaluations
+        theta = theta_fit
+    else:
+        if opt.paper:
+            phases = paper_phases(layout, typical)
+        else:
+
+            def phases(base: np.ndarray, problem=problem, report=report) -> list:
+                mean = base.mean(axis=0)
+                return [whitened_phase(problem, mean, typical, report, problem.objective(base))]
+
+        cfg = opt.swarm_config
+        if opt.paper and cfg is None and opt.method == "nafsa":
+            cfg = solver_for("nafsa")[1](cf_mode="literal")
+        threshold = opt.indicator_threshold
+        if threshold is None:
+            threshold = 1e-8 if opt.paper else 0.0
+        mcs = run_mcs(
+            problem,
+            theta0,
+            phases,
+            opt.method,
+            opt.mc_runs,
+            opt.seed,
+            cfg,
+            opt.cycles,
+            progress=progress,
+            indicator_threshold=threshold,
+            # the slews linearised about the runs' mean every cycle, each run on its own
+            # perturbed data (recal.solve.surrogate); paper mode: the exact objective, the same data
+            linearise=None if opt.paper else typical,
+            perturb=not opt.paper,
+        )
+        theta, evaluations = mcs.mean, evaluations + mcs.evaluations
+        if opt.polish:
+            lm = solve_lm(problem, theta, T)
+            theta, evaluations = lm.theta, evaluations + lm.evaluations
+    info_min = INFO_MIN if report.noise_decided else 0.0
+    if opt.method == "lm" or opt.polish:
+        fixed = fixed_point(problem, theta, theta0, typical, report.basis)
+        problem, theta, evaluations = fixed.problem, fixed.theta, evaluations + fixed.evaluations
+        convergence = fixed.convergence
+    else:
+        convergence = swarm_convergence(problem, theta, theta0, typical, info_min, opt.method)
+        evaluations += convergence.pop("evaluations", 0)
+    report = analyze(problem, theta, typical, info_min=info_min)
+    if opt.refuse_at_solution:
+        report = _decided(report, "at the solution")
+    T = typical[:, None] * report.basis
+    cov_measurement, chi2_red = covariance(problem, theta, T)
+    # the held directions are not exact: their prior uncertainty moves the estimated ones
+    cls = sensor_class(positions, problem.layout, theta0, MIN_EARTH_RATE_CONTRAST)
+    sigma0, sigma0_source = prior_sigma(
+        problem.layout, theta0, typical, opt.prior.uncertainty if opt.prior else None, cls
+    )
+    cov_held = consider_covariance(problem, theta, typical, report.basis, report.null, sigma0)
+    cov = cov_measurement + cov_held
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    status_flat = np.where(report.estimated, "estimated", "held")
+    notes += _observability_notes(report, problem)
+    moved = held_moved(layout, theta0, theta, report, sd)
+    if moved:
+        notes.append(moved)
+    if convergence and not convergence.get("converged"):
+        notes.append(f"not converged: {convergence.get('reason')}")
+    if opt.paper and opt.method != "lm":
+        notes.append(
+            "paper mode: the swarm also searched the directions no norm can see "
+            f"({'; '.join(report.held_directions) or 'none'}); their values are arbitrary"
+        )
+    if not problem.noise_known:
+        notes.append(
+            "no *_std or *_sem columns: noise estimated from the fit residuals"
+            if report.redundancy > 0
+            else "no *_std or *_sem columns and no redundancy: the noise and the uncertainty "
+            "are unknown"
+        )
+    if problem.noise_known and chi2_red > 1e3:
+        notes.append(
+            f"chi2_red = {chi2_red:.3g}: the invariants are far off; check --latitude, the "
+            "sensor's output units and that the windows are really static"
+        )
+    elif problem.noise_known and chi2_red > 4.0:
+        notes.append(_excess_note(problem, theta, T, chi2_red, opt.method))
+    slices = layout.term_slices()
+    coeffs = CoefficientSet.from_vector(
+        layout,
+        theta,
+        opt.t0_c,
+        method=opt.method,
+        prior=prior_source,
+        positions=problem.M,
+        source=positions.source,
+        **_plugin_metadata(layout),
+    )
+    coeffs.uncertainty = {n: sd[sl] for n, sl in slices.items()}
+    return CalibrationResult(
+        coefficients=coeffs,
+        status={n: status_flat[sl] for n, sl in slices.items()},
+        uncertainty={n: sd[sl] for n, sl in slices.items()},
+        covariance=cov,
+        covariance_measurement=cov_measurement,
+        held_uncertainty=HeldUncertainty(cls, sigma0_source, sigma0),
+        convergence=convergence,
+        observability=report,
+        problem=problem,
+        theta=theta,
+        theta_prior=theta0,
+        chi2_red=chi2_red,
+        method=opt.method + (" (paper mode)" if opt.paper and opt.method != "lm" else ""),
+        evaluations=evaluations,
+        wall_time_s=time.perf_counter() - t_start,
+        prior_source=prior_source,
+        mcs=mcs,
+        notes=notes,
+    )

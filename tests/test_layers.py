@@ -1,0 +1,107 @@
+"""The packages form one pipeline, and its layers hold (issue 21): drivers -> recal -> service.
+
+Checked on the source with the ast module (every import, module level or inside a function):
+
+* drivers imports neither recal nor service; recal never imports service;
+* the numerics core (recal outside recal.report) imports no plotting or document library, no
+  process pool, and writes no files;
+* recal.report is imported only by the command line, the service and the report package;
+* no module of service outside service/cli imports the command line.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Modules the numerics core must not import (drawing, documents, processes, networks).
+CORE_FORBIDDEN = ("matplotlib", "plotly", "jinja2", "concurrent", "multiprocessing",
+                  "subprocess", "socket", "sqlalchemy", "fastapi", "serial")  # fmt: skip
+#: Calls and methods that write files.
+WRITERS = {"write_text", "write_bytes", "savefig", "savez", "savez_compressed", "save", "tofile",
+           "mkdir", "unlink", "rename", "replace_file"}  # fmt: skip
+
+
+def _modules(package: str) -> list[Path]:
+    return sorted((ROOT / package).rglob("*.py"))
+
+
+def _imports(path: Path) -> list[str]:
+    """Every module named by an import in ``path`` (absolute names)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.append(node.module)
+            out += [f"{node.module}.{a.name}" for a in node.names]
+    return out
+
+
+def _rel(path: Path) -> str:
+    return str(path.relative_to(ROOT))
+
+
+def _core() -> list[Path]:
+    return [
+        p for p in _modules("recal") if not _rel(p).startswith(("recal/report/", "recal/runtime/"))
+    ]
+
+
+def test_the_layers_import_only_downwards() -> None:
+    bad = [(_rel(p), m) for p in _modules("drivers") for m in _imports(p)
+           if m.split(".")[0] in ("recal", "service")]  # fmt: skip
+    bad += [(_rel(p), m) for p in _modules("recal") for m in _imports(p)
+            if m.split(".")[0] == "service"]  # fmt: skip
+    assert not bad, bad
+
+
+def test_the_numerics_core_draws_nothing_starts_no_process_and_writes_no_file() -> None:
+    assert len(_core()) > 30
+    bad = [(_rel(p), m) for p in _core() for m in _imports(p)
+           if m.split(".")[0] in CORE_FORBIDDEN or m.startswith("recal.report")]  # fmt: skip
+    assert not bad, bad
+    writes = []
+    for p in _core():
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        buffers = {  # names bound to an in-memory buffer: saving into one writes no file
+            t.id for node in ast.walk(tree) if isinstance(node, ast.Assign)
+            and isinstance(node.value, ast.Call) and _name(node.value.func) == "BytesIO"
+            for t in node.targets if isinstance(t, ast.Name)
+        }  # fmt: skip
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Call):
+                continue
+            name = _name(node.func)
+            into_buffer = bool(node.args) and getattr(node.args[0], "id", None) in buffers
+            if (name in WRITERS and not into_buffer) or (name == "open" and _for_writing(node)):
+                writes.append((_rel(p), node.lineno, name))
+    assert not writes, writes
+
+
+def _name(func: ast.expr) -> str:
+    return func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+
+
+def _for_writing(call: ast.Call) -> bool:
+    modes = list(call.args[1:2]) + [k.value for k in call.keywords if k.arg == "mode"]
+    return any(isinstance(m, ast.Constant) and set(str(m.value)) & set("wax+") for m in modes)
+
+
+@pytest.mark.parametrize("package", ["recal", "drivers", "service"])
+def test_reports_are_imported_only_by_the_command_line_and_the_service(package: str) -> None:
+    allowed = ("recal/report/", "service/")
+    bad = [(_rel(p), m) for p in _modules(package) for m in _imports(p)
+           if m.startswith("recal.report") and not _rel(p).startswith(allowed)]  # fmt: skip
+    assert not bad, bad
+
+
+def test_the_service_core_does_not_import_the_command_line() -> None:
+    core = [p for p in _modules("service") if not _rel(p).startswith("service/cli/")]
+    assert len(core) > 15
+    bad = [(_rel(p), m) for p in core for m in _imports(p) if m.startswith("service.cli")]
+    assert not bad, bad
