@@ -94,7 +94,7 @@ def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path)
     # the drift statistic over time against its threshold, and why the last version ran
     page.wait_for_selector("#drift-chart .scatterlayer .point")
     assert page.locator("#drift-chart .scatterlayer .trace").first.locator(".point").count() == 2
-    expect(page.locator("#drift-reason")).to_have_text("version 1 ran because of manual")
+    expect(page.locator("#drift-reason")).to_have_text("version 1 (accepted) ran because of manual")
     assert page.locator("#windows tbody tr").count() == 24
     # health and log are polled
     # (the replayed capture has ended, so the reader reports a silent device: degraded)

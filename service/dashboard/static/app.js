@@ -294,7 +294,7 @@ function renderResiduals() {
 function renderDrift() {
   const d = state.drift || { points: [], last_reason: null };
   const r = d.last_reason;
-  $("drift-reason").textContent = r ? `version ${r.version} ran because of ${r.text}` : "no job yet";
+  $("drift-reason").textContent = r ? `version ${r.version} (${r.accepted ? "accepted" : "rejected"}) ran because of ${r.text}` : "no job yet";
   const chart = $("drift-chart");
   const pts = d.points.filter((p) => isNum(p.statistic));
   if (!pts.length) {
