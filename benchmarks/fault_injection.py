@@ -520,7 +520,7 @@ def main() -> int:
                     + ", ".join(CASES))  # fmt: skip
     args = ap.parse_args()
     signal.signal(signal.SIGTERM, _interrupt)  # cleaned up as after ^C (daemons, mounts, DBs)
-    from recal.session import simulate_session
+    from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth, session_to_kvh
 
     rng = random.Random(args.seed)

@@ -339,6 +339,10 @@ class Ingest:
         if self._disk is None:
             return []
         with self._lock:
+            try:
+                self._disk.probe()
+            except SpoolWriteError as exc:
+                self._spool_failed(exc)
             entries = self._disk.load()
             for bad in self._disk.unreadable:
                 self._events.emit("spool", f"unreadable spool file kept as .bad: {bad}",
@@ -395,6 +399,13 @@ class Ingest:
             self._retry_at = 0.0  # new data: try the database now
         return self._drain() if self._spool and time.monotonic() >= self._retry_at else []
 
+    def _spool_failed(self, exc: SpoolWriteError) -> None:
+        if self.spool_error != str(exc):
+            self._events.emit("spool", f"{exc}: storing windows straight to the database, in "
+                              "memory while it is down", {"dir": str(self._disk.directory)},
+                              level=logging.ERROR)  # fmt: skip
+        self.spool_error = str(exc)
+
     def _hold(self, entry: SpoolEntry) -> None:
         """Queue a new batch: on disk first (durable before it counts as detected); when the
         spool refuses it, in memory, where the drain that follows stores it if it can."""
@@ -402,12 +413,7 @@ class Ingest:
             try:
                 self._disk.append(entry)
             except SpoolWriteError as exc:
-                if self.spool_error != str(exc):
-                    self._events.emit("spool", f"{exc}: storing windows straight to the "
-                                      "database, in memory while it is down",
-                                      {"dir": str(self._disk.directory)},
-                                      level=logging.ERROR)  # fmt: skip
-                self.spool_error = str(exc)
+                self._spool_failed(exc)
             else:
                 if self.spool_error is not None:
                     self._events.emit("spool", f"spool {self._disk.directory} writable again")

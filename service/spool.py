@@ -117,6 +117,25 @@ class Spool:
         entry.path = self.directory / name
         return entry.path
 
+    def probe(self) -> None:
+        """Write, fsync and delete one byte (at start: a full or read-only folder is reported
+        before the first window needs it). Raises :class:`SpoolWriteError`."""
+        path = self.directory / f"{TMP_PREFIX}probe"
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            try:
+                os.write(fd, b"\0")
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            err = SpoolWriteError(f"spool {self.directory}: cannot write a window batch "
+                                  f"({describe_os_error(exc)})")  # fmt: skip
+            err.errno = exc.errno
+            raise err from exc
+        finally:
+            path.unlink(missing_ok=True)
+
     def load(self) -> list[SpoolEntry]:
         """Every durable entry, oldest first. Leftover temporary files (a crash while writing:
         never counted as detected) are removed; an unreadable file is renamed ``*.bad`` and

@@ -250,6 +250,8 @@ def test_a_full_disk_is_said_clearly_and_loses_nothing(tmp_path, frames, full_fo
     store, refusing, session = database(tmp_path / "r.db")
     events = Events(store)
     ingest = Ingest(store, session, CONFIG, events=events, spool=Spool(full_folder))
+    ingest.replay()  # at start: the full folder is said before any window needs it
+    assert ingest.spool_error is not None and ingest.detected == 0
     half = len(frames) // 2
     feed(ingest, frames, slice(0, half))
     # the database is up: each window went straight to it
