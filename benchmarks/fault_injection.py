@@ -248,6 +248,7 @@ class Case:
             f"[detector]\n{detector}"
             # lm: a job takes about a second, so versions are reached within every run
             f'[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "lm"\n{trigger}'
+            "use_last_positions = 30\n"  # sessions pile up: a job stays a few seconds long
             "stop_wait_s = 2\n"
             f"[api]\nport = {self.port}\n"
         )
