@@ -28,7 +28,7 @@ from typing import Any
 
 from service.config import Settings
 from service.events import Events
-from service.pipeline import FloorKeeper, Ingest, detector_config, window_frames
+from service.pipeline import FloorKeeper, Ingest, IngestThread, detector_config, window_frames
 from service.scheduler import Scheduler
 
 log = logging.getLogger("recal.daemon")
@@ -89,6 +89,8 @@ class Service:
     reader: Any = None
     #: The uvicorn server of the API (set by :func:`make_server`); None: no API to watch.
     server: Any = None
+    #: The thread between the reader and :attr:`ingest` (None without a reader).
+    feeder: Any = None
     started: float = field(default_factory=time.monotonic)
     last_tick: float = field(default_factory=time.monotonic)
     last_sync: float = field(default_factory=time.monotonic)
@@ -99,7 +101,11 @@ class Service:
         dead: dict[str, str] = {}
         if self.reader is not None and not self.reader.health().running:
             dead["reader"] = "the reader thread has stopped"
-        held = self.ingest.frames_waiting_s()
+        if self.feeder is not None and not self.feeder.alive:
+            dead["ingest"] = "the ingest thread has stopped"
+        waits = [self.ingest.frames_waiting_s(), None if self.feeder is None else
+                 self.feeder.waiting_s()]  # fmt: skip
+        held = max((w for w in waits if w is not None), default=None)
         if held is not None and held >= DETECTOR_STALL_S:  # frames pile up unprocessed
             dead["detector"] = f"frames have waited {held:.0f} s to be processed"
         if not self.scheduler.alive:
@@ -228,6 +234,8 @@ class Service:
         self.scheduler.stop_starting()  # the flush below may store windows: they start nothing
         if self.reader is not None:
             self.reader.stop()
+        if self.feeder is not None:
+            self.feeder.stop()  # what the reader queued goes in before the open window closes
         try:
             self.ingest.flush()
         except Exception:  # noqa: BLE001 - shutting down: keep going, the log has it
@@ -274,8 +282,10 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
         from drivers import FrameReader
 
         # any registered format, with the [device] settings it takes (drivers.registry)
+        # the reader only queues: the ingest thread runs the detector, spool and database
+        service.feeder = IngestThread(ingest)
         service.reader = FrameReader(d.url, d.format, options=d.format_options(),
-                                     on_batch=ingest.feed, baudrate=d.baudrate)  # fmt: skip
+                                     on_batch=service.feeder.put, baudrate=d.baudrate)  # fmt: skip
     events.emit("start", f"service started, reading {settings.device.url}",
                 {"session": session_id})  # fmt: skip
     service.sync_published()  # the file follows the database from the first second

@@ -73,7 +73,9 @@ def test_daemon_over_a_real_http_server(tmp_path, capture, serve, replay):
         assert http.get("/coefficients").status_code == 404  # nothing accepted yet
         replay(service, size)
         health = http.get("/health").json()
-        assert health["status"] == "ok" and health["positions"] == 24
+        # the capture has ended: a reader that has gone silent may already say so
+        assert health["positions"] == 24, health
+        assert all(p.startswith("reader:") for p in health["problems"]), health["problems"]
         # the motion between the windows is stored with them (23 slews, none dropped)
         part = health["service"]
         assert part["slews"] == 23 and not any(part["slews_dropped"].values())
