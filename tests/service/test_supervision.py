@@ -38,6 +38,7 @@ def _settings(url: str, tmp_path: Path, **scheduler) -> Settings:
     return Settings(
         database_url=url,
         publish_path=str(tmp_path / "c.json"),
+        spool_dir=str(tmp_path / "spool"),
         device=DeviceSettings(url="replay://unit", rate_hz=RATE),
         detector=DetectorSettings(accel_threshold=1e-6, gyro_threshold=1e4),
         scheduler=SchedulerSettings(
