@@ -76,8 +76,9 @@ def _setting(key: str, info: Any, width: int) -> list[str]:
     head = f"  {key} = {_toml(info.get_default(call_default_factory=True))}"
     out = [head + (f"  ({allowed})" if allowed else "")]
     if info.description:
+        # never break inside a hyphenated name or path (recal-spool/...)
         out += textwrap.wrap(info.description, width, initial_indent=" " * 6,
-                             subsequent_indent=" " * 6)  # fmt: skip
+                             subsequent_indent=" " * 6, break_on_hyphens=False)  # fmt: skip
     return out
 
 
