@@ -113,11 +113,15 @@ def run(args: argparse.Namespace) -> int:
 
 def parse_units(text: str | None, fmt: str) -> dict[str, str | None]:
     """{"gyro": unit or None, "accel": unit or None} from ``--units`` and the format."""
+    from drivers.registry import get_input_format
     from recal.errors import RecalInputError
 
-    units: dict[str, str | None] = {"gyro": None, "accel": None}
-    if fmt.startswith("kvh"):
-        units = {"gyro": "deg/h", "accel": "g"}
+    # the units the format gives (drivers.registry), when they are physical ones
+    gyro, accel = get_input_format(fmt).units
+    units: dict[str, str | None] = {
+        "gyro": gyro if gyro in GYRO_UNITS else None,
+        "accel": accel if accel in ACCEL_UNITS else None,
+    }
     for item in filter(None, (text or "").split(",")):
         triad, _, unit = item.partition("=")
         known = {"gyro": GYRO_UNITS, "accel": ACCEL_UNITS}.get(triad.strip())
