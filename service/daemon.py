@@ -227,6 +227,13 @@ class Service:
         elif self.publisher.error is not None and before is None:
             self.events.emit("publish", self.publisher.error, level=logging.ERROR)
 
+    def end_of_input(self, timeout_s: float = 60.0) -> None:
+        """The stream has ended (a replayed capture read to its end): feed what the reader
+        queued, then close the open window."""
+        if self.feeder is not None and not self.feeder.wait_idle(timeout_s):
+            raise TimeoutError(f"the ingest thread did not catch up within {timeout_s:g} s")
+        self.ingest.flush()
+
     def close(self, wait_s: float | None = None) -> None:
         """Stop reading, store the open window, let a running job finish (up to
         ``scheduler.stop_wait_s``) or abandon it, and release everything."""

@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         if time.monotonic() - t0 > 120:
             raise RuntimeError("replay did not finish within 120 s")
     service.reader.stop()
-    service.ingest.flush()
+    service.end_of_input()
     service.scheduler.wait(timeout=300)
     h = service.reader.health().counters
     _say(f"recal demo: replayed through replay:// in {time.monotonic() - t0:.1f} s: "
@@ -121,7 +121,7 @@ def _print_summary(service, truth) -> None:
 
     store = service.store
     history = list(reversed(store.history(limit=50)))
-    print(f"{'version':>7s} {'trigger':>8s} {'positions':>9s} {'accepted':>8s} "
+    print(f"{'version':>7s} {'trigger':>11s} {'positions':>9s} {'accepted':>8s} "
           f"{'chi2_red':>8s}  gyro Kx - 1 [ppm]      accel bz [ug]")  # fmt: skip
     for r in history:
         doc = r.document
@@ -129,7 +129,7 @@ def _print_summary(service, truth) -> None:
         skx = doc["uncertainty"]["gyro"]["scale"][0] * 1e6
         bz = doc["coefficients"]["accel"]["bias"][2] * 1e6
         sbz = doc["uncertainty"]["accel"]["bias"][2] * 1e6
-        print(f"{r.version:7d} {r.trigger:>8s} {len(r.positions_used):9d} "
+        print(f"{r.version:7d} {r.trigger:>11s} {len(r.positions_used):9d} "
               f"{'yes' if r.accepted else 'no':>8s} {doc['chi2_red']:8.2f}  "
               f"{kx:8.1f} +- {skx:5.1f}       {bz:8.1f} +- {sbz:5.1f}")  # fmt: skip
     current = store.current()

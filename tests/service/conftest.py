@@ -153,9 +153,7 @@ def replay_all(service: Any, size: int, timeout_s: float = 60.0) -> None:
     while service.reader.health().counters.bytes_in < size:
         assert time.monotonic() < deadline, "replay did not finish"
         time.sleep(0.05)
-    if service.feeder is not None:  # the reader only queues: let the ingest thread catch up
-        assert service.feeder.wait_idle(max(1.0, deadline - time.monotonic()))
-    service.ingest.flush()
+    service.end_of_input(max(1.0, deadline - time.monotonic()))
 
 
 @pytest.fixture
