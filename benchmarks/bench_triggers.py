@@ -16,7 +16,7 @@ where windows come hours apart:
 Policies compared side by side: ``count`` (the old rule, a job every ``min_new_positions = 4``
 windows), ``drift+information`` (the default), ``drift`` alone.
 
-    python benchmarks/bench_triggers.py               # 5 seeds, about 10 min on 2 cores
+    python benchmarks/bench_triggers.py               # 5 seeds, about 15 min on 2 cores
     python benchmarks/bench_triggers.py --seeds 2     # quicker
 """
 
