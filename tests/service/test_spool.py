@@ -11,15 +11,11 @@ from __future__ import annotations
 
 import errno
 import os
-import secrets
 import subprocess
 from pathlib import Path
 
 import numpy as np
-import psycopg
 import pytest
-from psycopg import sql
-from sqlalchemy.engine import make_url
 
 from drivers import DecoderConfig, decode_bulk
 from recal.detect.slews import ReducedSlew
@@ -277,51 +273,9 @@ def test_a_full_disk_is_said_clearly_and_loses_nothing(tmp_path, frames, full_fo
 
 # ---- the daemon, its database refused (PostgreSQL closed to connections) -------------------------
 
-PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
-
-
-def _admin() -> psycopg.Connection:
-    return psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=3)
-
-
-@pytest.fixture
-def pg_database():
-    try:
-        admin = _admin()
-    except psycopg.OperationalError as exc:
-        if os.environ.get("CI"):
-            pytest.fail(f"PostgreSQL unreachable: {exc}")
-        pytest.skip(f"PostgreSQL unreachable: {exc}")
-    name = f"recal_spool_{secrets.token_hex(4)}"
-    with admin:
-        admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
-    url = make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg", database=name)
-    try:
-        yield name, url.render_as_string(hide_password=False)
-    finally:
-        with _admin() as admin:
-            admin.execute(
-                sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS true").format(sql.Identifier(name))
-            )
-            admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(sql.Identifier(name)))
-
-
-def _block(name: str, allow: bool) -> None:
-    with _admin() as admin:
-        admin.execute(
-            sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS {}").format(
-                sql.Identifier(name), sql.SQL("true" if allow else "false")
-            )
-        )
-        if not allow:
-            admin.execute(
-                "SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s",
-                (name,),
-            )
-
 
 def test_a_kill_during_a_database_outage_loses_no_detected_window(
-    tmp_path, frames, pg_database
+    tmp_path, frames, pg_database, block_database
 ) -> None:
     name, url = pg_database
     settings = Settings(
@@ -337,7 +291,7 @@ def test_a_kill_during_a_database_outage_loses_no_detected_window(
     feed(service.ingest, frames, slice(0, half))
     before = service.store.count_positions()
     assert before > 3
-    _block(name, allow=False)
+    block_database(name, allow=False)
     feed(service.ingest, frames, slice(half, None))
     waiting = service.ingest.spooled
     assert waiting > 0 and service.ingest.windows_in_memory == 0  # on disk, not in memory
@@ -348,7 +302,7 @@ def test_a_kill_during_a_database_outage_loses_no_detected_window(
     # kill -9: no flush, no store; what was open is lost, what was detected is on disk
     service.scheduler.shutdown(wait_s=0)
     service.store.close()
-    _block(name, allow=True)
+    block_database(name, allow=True)
     restarted = build_service(settings, with_reader=False)
     try:
         assert restarted.ingest.replayed == waiting and restarted.ingest.spooled == 0

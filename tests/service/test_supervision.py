@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import os
-import secrets
 import signal
 import socket
 import subprocess
@@ -12,10 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-import psycopg
 import pytest
-from psycopg import sql
-from sqlalchemy.engine import make_url
 
 from drivers import DecoderConfig, decode_bulk
 from recal.sim.session import simulate_session
@@ -122,50 +118,9 @@ def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
         service.close(wait_s=0)
 
 
-PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
-
-
-def _admin() -> psycopg.Connection:
-    return psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=3)
-
-
-@pytest.fixture
-def pg_database():
-    try:
-        admin = _admin()
-    except psycopg.OperationalError as exc:
-        if os.environ.get("CI"):
-            pytest.fail(f"PostgreSQL unreachable: {exc}")
-        pytest.skip(f"PostgreSQL unreachable: {exc}")
-    name = f"recal_outage_{secrets.token_hex(4)}"
-    with admin:
-        admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
-    url = make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg", database=name)
-    try:
-        yield name, url.render_as_string(hide_password=False)
-    finally:
-        with _admin() as admin:
-            admin.execute(
-                sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS true").format(sql.Identifier(name))
-            )
-            admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(sql.Identifier(name)))
-
-
-def _block(name: str, allow: bool) -> None:
-    with _admin() as admin:
-        admin.execute(
-            sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS {}").format(
-                sql.Identifier(name), sql.SQL("true" if allow else "false")
-            )
-        )
-        if not allow:
-            admin.execute(
-                "SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s",
-                (name,),
-            )
-
-
-def test_no_window_is_lost_to_a_database_outage(tmp_path, capture, pg_database) -> None:
+def test_no_window_is_lost_to_a_database_outage(
+    tmp_path, capture, pg_database, block_database
+) -> None:
     name, url = pg_database
     service = build_service(_settings(url, tmp_path), with_reader=False)
     try:
@@ -173,14 +128,14 @@ def test_no_window_is_lost_to_a_database_outage(tmp_path, capture, pg_database) 
         _feed(service, capture, slice(0, half))
         before = service.store.count_positions()
         assert before > 5
-        _block(name, allow=False)
+        block_database(name, allow=False)
         _feed(service, capture, slice(half, None))
         service.ingest.flush()
         assert service.ingest.spooled > 0  # waiting, not dropped
         health = service.health()
         assert health["status"] == "degraded"
         assert any(p.startswith("database:") for p in health["problems"])
-        _block(name, allow=True)
+        block_database(name, allow=True)
         deadline = time.monotonic() + 60
         while service.ingest.spooled:
             assert time.monotonic() < deadline, "spooled windows were never stored"
