@@ -19,7 +19,6 @@ and the dashboard shows.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,8 +29,6 @@ from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from service.config import Settings
-
-log = logging.getLogger("recal.triggers")
 
 
 @dataclass(frozen=True)
