@@ -66,6 +66,10 @@ class Window:
     #: False for an accelerometer-only window: the accel was still, the gyro was not (tremor).
     #: Its gyro mean is still a fair rest reference for the slews, not a static gyro reading.
     gyro_still: bool = True
+    #: True for a quasi-static window of a moving hull (recal.detect.hull): its means are the
+    #: motion-corrected estimates and its sems already carry the motion's residual, so they are
+    #: used as they are, not pooled from Allan statistics (it has none).
+    quasi_static: bool = False
 
     @property
     def duration_s(self) -> float:
@@ -85,10 +89,15 @@ def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
         "end_s": np.array([w.end_s for w in windows], dtype=float),
         "samples": np.array([w.samples for w in windows], dtype=float),
     }
-    gyro_sem, accel_sem = pooled_standard_errors(windows)
+    quasi = np.array([w.quasi_static for w in windows], dtype=bool)
+    gyro_sem = np.array([w.gyro_sem for w in windows], dtype=float).reshape(-1, 3)
+    accel_sem = np.array([w.accel_sem for w in windows], dtype=float).reshape(-1, 3)
+    if (~quasi).any():
+        pooled = [windows[i] for i in np.flatnonzero(~quasi)]
+        gyro_sem[~quasi], accel_sem[~quasi] = pooled_standard_errors(pooled)
     still = np.array([w.gyro_still for w in windows], dtype=bool)
-    if still.any() and not still.all():
-        for group in (still, ~still):
+    if still[~quasi].any() and not still[~quasi].all():
+        for group in (still & ~quasi, ~still & ~quasi):
             idx = np.flatnonzero(group)
             gyro_sem[idx] = pooled_standard_errors([windows[i] for i in idx])[0]
     for names, values in (

@@ -175,7 +175,7 @@ def kinematics(spec: VoyageSpec, t: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def _euler_rates_to_body(
+def euler_rates_to_body(
     roll: np.ndarray, pitch: np.ndarray, droll: np.ndarray, dpitch: np.ndarray, dyaw: np.ndarray
 ) -> np.ndarray:
     """z-y-x Euler angle rates -> body rate relative to NED, (N, 3) rad/s."""
@@ -186,7 +186,7 @@ def _euler_rates_to_body(
     )
 
 
-def _dcm(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+def dcm_zyx(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """(N, 3, 3) body-to-NED from vectors of z-y-x angles."""
     cr, sr = np.cos(roll), np.sin(roll)
     cp, sp = np.cos(pitch), np.sin(pitch)
@@ -256,7 +256,7 @@ def simulate_voyage(
     C_mount = attitude_matrix(*np.radians(spec.mount_rpy_deg))
 
     def attitude(sl: slice) -> np.ndarray:
-        return _dcm(st["roll"][sl], st["pitch"][sl], st["heading"][sl]) @ C_mount
+        return dcm_zyx(st["roll"][sl], st["pitch"][sl], st["heading"][sl]) @ C_mount
 
     C_bn = attitude(mid)
     lat, vn, ve = st["lat"][mid], st["vn"][mid], st["ve"][mid]
@@ -265,7 +265,7 @@ def simulate_voyage(
     rm, rn = WGS84_A_M * (1.0 - WGS84_E2) / k**3 + h, WGS84_A_M / k + h
     w_ie = np.stack([OMEGA_IE_RAD_S * cl_, np.zeros(N), -OMEGA_IE_RAD_S * sl_], axis=1)
     w_en = np.stack([ve / rn, -vn / rm, -ve * sl_ / cl_ / rn], axis=1)
-    w_nb_v = _euler_rates_to_body(
+    w_nb_v = euler_rates_to_body(
         st["roll"][mid], st["pitch"][mid], st["roll_dot"][mid], st["pitch_dot"][mid],
         st["heading_dot"][mid],
     )  # fmt: skip

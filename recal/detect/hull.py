@@ -1,0 +1,471 @@
+"""Quasi-static windows on a moving hull: a berth where the vessel rolls, pitches, heaves and
+swings, and turns now and then (docs/static.md#a-hull-that-is-never-still).
+
+A moored hull is never still, so a moving-variance test finds only the lulls between wave crests
+(1 to 9 s "windows" whose means carry the wave's phase). Here stillness is judged on the
+time scale of the waves and by physics:
+
+1. **Segmentation.** The recording is cut into blocks of ``block_s``. A block is *turning* when
+   the rate averaged over ``turn_window_s`` around it (a parabolic weight, which passes waves
+   about (P / L)^2 times less than a plain mean) exceeds Earth's rate by more than the unit's
+   plausible coefficient error, the waves' residual in that average, and the largest heading
+   change a berth swing makes (``max_swing_deg`` twice over ``turn_window_s``): a turn of 0.1
+   deg/s and more (``shared/spec/vessel.md``) always is. A block is *accelerating* when the
+   averaged specific force is not gravity. Runs of the other blocks, trimmed by ``trim_s``, cut
+   into pieces of at most ``max_window_s``, and at least ``min_window_s`` long, are the
+   candidate windows.
+2. **The window's rate** is the least-squares slope of the attitude the gyro integrates (the
+   rotation vector, coning-corrected to second order), not the mean rate. For periodic motion
+   of angular frequency w and angle A, a plain mean keeps up to 2 A / T of the net attitude change
+   over T (12 deg/h at 1 degree of roll over 10 minutes: as large as Earth's rate); the slope
+   keeps about 12 A / (w T^2) (0.15 deg/h). The slope is a parabolic-weighted mean of the
+   rate, expressed in the window's mean attitude.
+3. **The window's specific force** is the same parabolic-weighted mean of the accelerometer
+   outputs, corrected for the second-order loss of a rocking mean (its norm is low by g A^2 / 4,
+   76 ug at 1 degree): the gyro's own attitude oscillation gives that correction.
+4. **Uncertainty.** Each mean carries the sensor's white noise through the weights (estimated from
+   the second differences of the samples, which waves barely touch) plus the motion's residual
+   (12 A_rms / (w T^2) per axis, from the window's own oscillation amplitude and frequency), plus,
+   for the accelerometer, the centripetal acceleration of an unknown lever arm up to
+   ``lever_arm_max_m`` and a tenth of the second-order correction. A wave-contaminated mean never
+   gets a still window's sigma.
+5. **Physics.** The corrected means go through the rest check (:mod:`recal.detect.rest`) with
+   those standard errors; a window that fails is rejected with its reason.
+
+Everything works on sample arrays (:func:`detect_hull`) or incrementally (:class:`HullDetector`,
+which buffers at most ``max_window_s`` plus the look-ahead). Pure numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from recal.detect.rest import REST_REASONS, RestReference
+from recal.detect.windows import Window
+from recal.errors import RecalInputError
+
+_DPH_TO_RAD_S = math.radians(1.0) / 3600.0
+#: Longest wave period the segmentation allows for (s): roll of a large hull at anchor.
+LONGEST_WAVE_S = 20.0
+#: The motion's residual in a window's slope is 12 A_rms / (w T^2) averaged over the phase at
+#: which the window starts; its largest value over the phase is sqrt(2) times that.
+_PHASE = math.sqrt(2.0)
+
+
+@dataclass(frozen=True)
+class HullConfig:
+    """Settings of the hull detector; times in s, angles in deg, lengths in m."""
+
+    block_s: float = 0.5
+    turn_window_s: float = 60.0
+    max_swing_deg: float = 1.0
+    trim_s: float = 2.0
+    min_window_s: float = 120.0
+    max_window_s: float = 1800.0
+    lever_arm_max_m: float = 10.0
+    max_gap_frames: int = 5
+
+    def __post_init__(self) -> None:
+        for name in ("block_s", "turn_window_s", "min_window_s", "max_window_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise RecalInputError(f"hull detector {name} must be positive, not {v}")
+        if self.min_window_s > self.max_window_s:
+            raise RecalInputError("hull detector min_window_s exceeds max_window_s")
+        if self.turn_window_s < 2 * LONGEST_WAVE_S:
+            raise RecalInputError(
+                f"turn_window_s {self.turn_window_s:g} s must span at least two of the longest "
+                f"wave periods ({2 * LONGEST_WAVE_S:g} s)"
+            )
+
+
+@dataclass
+class HullReport:
+    """What the hull detector saw: blocks by state, windows kept and rejected by reason."""
+
+    frames: int = 0
+    blocks: int = 0
+    blocks_turning: int = 0
+    blocks_accelerating: int = 0
+    blocks_fault: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    rejected_stretches: list[tuple[float, float, str]] = field(default_factory=list)
+    kept: int = 0
+
+    def summary_lines(self) -> list[str]:
+        rej = ", ".join(f"{r} {self.rejected.get(r, 0)}" for r in ("too_short", *REST_REASONS))
+        lines = [
+            f"hull detector: {self.kept} window(s) kept; rejected: {rej}",
+            f"blocks: {self.blocks} ({self.blocks_turning} turning, {self.blocks_accelerating} "
+            f"accelerating, {self.blocks_fault} with faults)",
+        ]
+        for a, b, why in self.rejected_stretches[:20]:
+            lines.append(f"  {a:.1f}-{b:.1f} s ({b - a:.1f} s): {why}")
+        return lines
+
+
+@dataclass(frozen=True)
+class HullWindow:
+    """A quasi-static window and what its estimate rests on (the per-axis motion terms)."""
+
+    window: Window
+    gyro_motion_sem: np.ndarray  # (3,) output units: the waves' residual in the slope
+    accel_motion_sem: np.ndarray  # (3,) output units: residual, lever arm, 2nd-order correction
+    tilt_rms_deg: float  # RMS of the attitude oscillation about the mean, deg
+    period_s: float  # effective period of that oscillation, s
+
+
+# ---- the block series ----------------------------------------------------------------------
+def _parabolic_kernel(n: int) -> np.ndarray:
+    """Weights proportional to u (1 - u) over n points (sum 1): the OLS slope of an integral."""
+    u = (np.arange(n) + 0.5) / n
+    w = u * (1.0 - u)
+    return w / w.sum()
+
+
+def _moving(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Centred weighted moving average of each column; NaN where the kernel leaves the data."""
+    n, k = len(x), len(kernel)
+    out = np.full(x.shape, np.nan)
+    if n < k:
+        return out
+    h = k // 2
+    for j in range(x.shape[1]):  # a loop over 3 axes; np.convolve is vectorised over samples
+        out[h : h + n - k + 1, j] = np.convolve(x[:, j], kernel[::-1], mode="valid")
+    return out
+
+
+def block_states(
+    gyro: np.ndarray, accel: np.ndarray, ok: np.ndarray, rate_hz: float, ref: RestReference,
+    cfg: HullConfig,
+) -> tuple[np.ndarray, int]:  # fmt: skip
+    """State per block (0 still, 1 turning, 2 accelerating, 3 fault) and frames per block."""
+    B = max(1, round(cfg.block_s * rate_hz))
+    nb = len(gyro) // B
+    if nb == 0:
+        return np.zeros(0, dtype=np.int8), B
+    g = gyro[: nb * B].reshape(nb, B, 3)
+    a = accel[: nb * B].reshape(nb, B, 3)
+    okb = ok[: nb * B].reshape(nb, B)
+    cnt = okb.sum(axis=1)
+    fault = cnt < (B + 1) // 2
+    safe = np.maximum(cnt, 1)[:, None]
+    gm = np.where(okb[..., None], g, 0.0).sum(axis=1) / safe
+    am = np.where(okb[..., None], a, 0.0).sum(axis=1) / safe
+    # fill faulty blocks from their neighbours so the moving averages stay defined
+    if fault.any() and not fault.all():
+        good = np.flatnonzero(~fault)
+        for x in (gm, am):
+            for j in range(3):
+                x[fault, j] = np.interp(np.flatnonzero(fault), good, x[good, j])
+    L = max(3, round(cfg.turn_window_s / cfg.block_s) | 1)
+    kern = _parabolic_kernel(L)
+    w = ref.rate_dph(gm)
+    f = ref.force_g(am)
+    W = _moving(w, kern)
+    F = _moving(f, kern)
+    # the waves' residual in a parabolic average: 12 rho / (w^2 L^2) for a rate oscillation of
+    # RMS rho at angular frequency w; the longest wave period is the worst case
+    rho_w = np.sqrt(np.maximum(_moving(w**2, kern) - W**2, 0.0).sum(axis=1))
+    rho_f = np.sqrt(np.maximum(_moving(f**2, kern) - F**2, 0.0).sum(axis=1))
+    span = L * cfg.block_s
+    om = 2.0 * math.pi / LONGEST_WAVE_S
+    wave_w = 12.0 * rho_w / (om * span) ** 2
+    wave_f = 12.0 * rho_f / (om * span) ** 2
+    swing_dph = 2.0 * cfg.max_swing_deg / span * 3600.0
+    Wn = np.linalg.norm(W, axis=1)
+    Fn = np.linalg.norm(F, axis=1)
+    turning = Wn - ref.earth_rate_dph > ref.rate_tolerance_dph() + 3.0 * wave_w + swing_dph
+    accel_bad = np.abs(Fn - ref.gravity_g) > ref.force_tolerance_g() + 3.0 * wave_f
+    state = np.zeros(nb, dtype=np.int8)
+    undefined = ~np.isfinite(Wn)
+    state[accel_bad] = 2
+    state[turning] = 1
+    state[undefined] = 3  # the first and last half window: no average to judge by
+    state[fault] = 3
+    return state, B
+
+
+# ---- one window's estimate --------------------------------------------------------------------
+def estimate_window(
+    t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, ref: RestReference, cfg: HullConfig
+) -> tuple:
+    """Rate and specific force of one quasi-static window, output units, and their 1-sigma.
+
+    Returns gyro mean (3,), accel mean (3,), gyro sem (3,), accel sem (3,), the tilt RMS (rad),
+    the oscillation's effective angular frequency (rad/s), and the motion's parts of the gyro and
+    accel sems (3,) each. ``t`` (n,) s; samples valid.
+    """
+    n = len(t)
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    T = n * dt
+    w = _parabolic_kernel(n)  # weights of the OLS slope of the integral, sum 1
+    # rotation vector from the window's start, rad (coning-corrected to second order)
+    rate = ref.rate_dph(gyro) * _DPH_TO_RAD_S
+    dth = rate * dt
+    theta = np.cumsum(dth, axis=0)
+    prev = theta - dth
+    phi_mid = prev + 0.5 * dth + 0.5 * np.cumsum(np.cross(prev, dth), axis=0)
+    # slope by the weights (the rate) plus the coning term's slope
+    coning_rate = 0.5 * np.cross(prev + 0.5 * dth, rate)  # d/dt of the cross term, rad/s
+    slope = w @ (rate + coning_rate)
+    tc = (np.arange(n) + 0.5) * dt
+    intercept = phi_mid.mean(axis=0) - slope * tc.mean()
+    delta = phi_mid - intercept - np.outer(tc, slope)  # the oscillation about the mean attitude
+    # in the mean attitude frame: the window's start frame is off it by -intercept
+    slope_m = slope + np.cross(intercept, slope)
+    gyro_mean = (slope_m / _DPH_TO_RAD_S + ref.gyro_bias_dph) * ref.gyro_scale
+    # specific force: the weighted mean, then the rocking loss f_mean = (I + (S - tr S I) / 2) f0
+    f = ref.force_g(accel)
+    f_bar = w @ f
+    S = (delta * w[:, None]).T @ delta
+    M = np.eye(3) + 0.5 * (S - np.trace(S) * np.eye(3))
+    f0 = np.linalg.solve(M, f_bar)
+    accel_mean = (f0 + ref.accel_bias_g) * ref.accel_scale
+    # white noise through the weights, from second differences (var(d2) = 6 sigma^2)
+    sw2 = float(w @ w)
+
+    def white(x: np.ndarray) -> np.ndarray:
+        if n < 4:
+            return np.full(3, np.nan)
+        d2 = np.diff(x, n=2, axis=0)
+        return np.sqrt(np.mean(d2**2, axis=0) / 6.0 * sw2)
+
+    gyro_white = white(gyro)
+    accel_white = white(accel)
+    # the motion's residual: 12 A_rms / (w T^2) per axis, w from rate RMS / angle RMS
+    a_rms = np.sqrt(np.mean(delta**2, axis=0))
+    rate_res = rate + coning_rate - slope
+    r_rms = np.sqrt(np.mean(rate_res**2, axis=0))
+    tilt = float(np.sqrt(np.sum(a_rms**2)))
+    # per axis: a slow yaw swing and fast roll are different motions
+    slowest = 2.0 * math.pi / T  # nothing slower than the window shows
+    om_axis = np.maximum(np.where(a_rms > 0, r_rms / np.maximum(a_rms, 1e-300), slowest), slowest)
+    om = float(np.sqrt(np.sum(r_rms**2)) / tilt) if tilt > 0 else slowest
+    om = max(om, slowest)
+    # (the largest over the oscillation's phase: sqrt 2 times the RMS over phases)
+    gyro_motion = _PHASE * 12.0 * a_rms / (om_axis * T**2) / _DPH_TO_RAD_S * np.abs(ref.gyro_scale)
+    f_res = f - f_bar
+    acc_rms = np.sqrt(np.mean(f_res**2, axis=0))
+    accel_resid = _PHASE * 12.0 * acc_rms / (om * T) ** 2
+    # centripetal acceleration of an unknown lever arm: |w|^2 r at most, in g
+    omega2 = float(np.mean(np.sum(rate_res**2, axis=1)))
+    lever = omega2 * cfg.lever_arm_max_m / 9.80665 / math.sqrt(3.0)
+    second = 0.1 * np.abs(f0 - f_bar)
+    accel_motion = np.sqrt(accel_resid**2 + lever**2 + second**2) * np.abs(ref.accel_scale)
+    gyro_sem = np.sqrt(gyro_white**2 + gyro_motion**2)
+    accel_sem = np.sqrt(accel_white**2 + accel_motion**2)
+    return gyro_mean, accel_mean, gyro_sem, accel_sem, tilt, om, gyro_motion, accel_motion
+
+
+# ---- the whole recording -----------------------------------------------------------------------
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each run of True."""
+    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
+
+
+def detect_hull(
+    time_s: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    ref: RestReference,
+    cfg: HullConfig | None = None,
+    temperature_c: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+    rate_hz: float | None = None,
+) -> tuple[list[HullWindow], HullReport]:
+    """Quasi-static windows of a recording (arrays of frames, output units)."""
+    cfg = cfg or HullConfig()
+    time_s = np.asarray(time_s, float)
+    n = len(time_s)
+    gyro = np.asarray(gyro, float)
+    accel = np.asarray(accel, float)
+    if gyro.shape != (n, 3) or accel.shape != (n, 3):
+        raise RecalInputError("the hull detector needs both triads, (n, 3) each")
+    if rate_hz is None:
+        if n < 2:
+            raise RecalInputError("too few frames for the hull detector")
+        rate_hz = 1.0 / float(np.median(np.diff(time_s)))
+    ok = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, bool)
+    ok &= np.isfinite(gyro).all(axis=1) & np.isfinite(accel).all(axis=1)
+    report = HullReport(frames=n)
+    state, B = block_states(gyro, accel, ok, rate_hz, ref, cfg)
+    report.blocks = len(state)
+    report.blocks_turning = int(np.sum(state == 1))
+    report.blocks_accelerating = int(np.sum(state == 2))
+    report.blocks_fault = int(np.sum(state == 3))
+    trim = round(cfg.trim_s * rate_hz)
+    min_n = round(cfg.min_window_s * rate_hz)
+    max_n = round(cfg.max_window_s * rate_hz)
+    pieces: list[tuple[int, int]] = []
+    for b0, b1 in _runs(state == 0):  # a loop over runs (tens per day), not samples
+        a, b = b0 * B + trim, b1 * B - trim
+        if b - a < min_n:
+            if b - a > 0:
+                report.rejected["too_short"] += 1
+                report.rejected_stretches.append((time_s[a], time_s[b - 1], "too short"))
+            continue
+        k = max(1, math.ceil((b - a) / max_n))
+        edges = np.linspace(a, b, k + 1).round().astype(int)
+        pieces.extend(zip(edges[:-1], edges[1:], strict=True))
+    out: list[HullWindow] = []
+    cand = []
+    for a, b in pieces:  # a loop over windows; each estimate is vectorised over its samples
+        sel = np.flatnonzero(ok[a:b]) + a
+        est = estimate_window(time_s[sel], gyro[sel], accel[sel], ref, cfg)
+        cand.append((a, b, sel, est))
+    if cand:
+        g = np.array([c[3][0] for c in cand])
+        f = np.array([c[3][1] for c in cand])
+        gs = np.array([c[3][2] for c in cand])
+        fs = np.array([c[3][3] for c in cand])
+        reasons = ref.judge(g, f, gs, fs)
+    for (a, b, sel, est), why in zip(cand, reasons if cand else [], strict=True):
+        gm, fm, gsem, fsem, tilt, om, gmot, fmot = est
+        if why:
+            report.rejected[why] += 1
+            report.rejected_stretches.append((time_s[a], time_s[b - 1], str(why)))
+            continue
+        temp = (
+            float(np.nanmean(temperature_c[sel]))
+            if temperature_c is not None and np.isfinite(temperature_c[sel]).any()
+            else math.nan
+        )
+        rate_c = (
+            _slope_per_h(time_s[sel], temperature_c[sel]) if temperature_c is not None else math.nan
+        )
+        win = Window(
+            start_s=float(time_s[a] - time_s[0]),
+            end_s=float(time_s[b - 1] - time_s[0]),
+            start_index=int(a),
+            end_index=int(b - 1),
+            samples=int(len(sel)),
+            gyro=gm,
+            accel=fm,
+            gyro_std=gyro[sel].std(axis=0, ddof=1),
+            accel_std=accel[sel].std(axis=0, ddof=1),
+            temperature_c=temp,
+            temperature_rate_c_per_h=rate_c,
+            frames_lost=0,
+            frames_invalid=int((b - a) - len(sel)),
+            gyro_sem=gsem,
+            accel_sem=fsem,
+            quasi_static=True,
+        )
+        out.append(HullWindow(win, gmot, fmot, math.degrees(tilt), 2.0 * math.pi / om))
+    report.kept = len(out)
+    return out, report
+
+
+def _slope_per_h(t: np.ndarray, y: np.ndarray) -> float:
+    m = np.isfinite(y)
+    if m.sum() < 2:
+        return math.nan
+    tt, yy = t[m] - t[m].mean(), y[m] - y[m].mean()
+    d = float(tt @ tt)
+    return float(tt @ yy / d) * 3600.0 if d > 0 else math.nan
+
+
+class HullDetector:
+    """The hull detector fed frame chunks as they arrive (the daemon's form of :func:`detect_hull`).
+
+    It buffers frames until it holds ``max_window_s`` plus two turn windows, or the stream ends;
+    then it runs :func:`detect_hull` on the buffer, emits the windows that end at least a turn
+    window before the buffer's end (the rest may still grow), and drops the frames it has
+    decided. Memory is bounded by that buffer (18 min at the defaults). Window times and indices
+    count from the first frame fed.
+    """
+
+    def __init__(self, ref: RestReference, cfg: HullConfig | None = None, rate_hz: float = 100.0):
+        self.ref = ref
+        self.cfg = cfg or HullConfig()
+        self.rate_hz = float(rate_hz)
+        self.report = HullReport()
+        self._chunks: list[tuple[np.ndarray, ...]] = []
+        self._buffered = 0
+        self._offset = 0  # global index of the buffer's first frame
+        self._t0: float | None = None
+        span = self.cfg.max_window_s + 2.0 * self.cfg.turn_window_s + 4.0 * self.cfg.trim_s
+        self._capacity = round(span * self.rate_hz)
+
+    def feed(
+        self,
+        time_s: np.ndarray,
+        gyro: np.ndarray,
+        accel: np.ndarray,
+        temperature_c: np.ndarray | None = None,
+        valid: np.ndarray | None = None,
+    ) -> list[HullWindow]:
+        n = len(time_s)
+        if n == 0:
+            return []
+        if self._t0 is None:
+            self._t0 = float(time_s[0])
+        temp = np.full(n, np.nan) if temperature_c is None else np.asarray(temperature_c, float)
+        ok = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, bool)
+        self._chunks.append((np.asarray(time_s, float), np.asarray(gyro, float),
+                             np.asarray(accel, float), temp, ok))  # fmt: skip
+        self._buffered += n
+        self.report.frames += n
+        out: list[HullWindow] = []
+        while self._buffered >= self._capacity:
+            out += self._decide(final=False)
+        return out
+
+    def flush(self) -> list[HullWindow]:
+        """The end of the input: decide everything buffered."""
+        return self._decide(final=True) if self._buffered else []
+
+    def _decide(self, final: bool) -> list[HullWindow]:
+        t, g, a, temp, ok = (np.concatenate(x) for x in zip(*self._chunks, strict=True))
+        wins, rep = detect_hull(t, g, a, self.ref, self.cfg, temp, ok, self.rate_hz)
+        horizon = len(t) if final else len(t) - round(2.0 * self.cfg.turn_window_s * self.rate_hz)
+        emitted = [w for w in wins if w.window.end_index < horizon]
+        if final:
+            cut = len(t)
+        elif emitted:
+            cut = emitted[-1].window.end_index + 1
+        else:
+            cut = max(1, horizon - round(self.cfg.turn_window_s * self.rate_hz))
+        # only what lies before the cut counts: the rest is judged again with more data
+        for a0, b0, why in rep.rejected_stretches:
+            if final or b0 < t[cut - 1]:
+                key = "too_short" if why == "too short" else why
+                self.report.rejected[key] += 1
+                self.report.rejected_stretches.append((a0 - self._t0, b0 - self._t0, why))
+        nb = cut // max(1, round(self.cfg.block_s * self.rate_hz))
+        blocks = rep.blocks if final else min(rep.blocks, nb)
+        self.report.blocks += blocks
+        # block states of the decided part, in proportion (the undecided part is counted later)
+        share = blocks / rep.blocks if rep.blocks else 0.0
+        self.report.blocks_turning += round(rep.blocks_turning * share)
+        self.report.blocks_accelerating += round(rep.blocks_accelerating * share)
+        self.report.blocks_fault += round(rep.blocks_fault * share)
+        shifted = []
+        for hw in emitted:
+            w = hw.window
+            moved = _shift(w, self._offset, float(t[0]) - self._t0)
+            shifted.append(HullWindow(moved, hw.gyro_motion_sem, hw.accel_motion_sem,
+                                      hw.tilt_rms_deg, hw.period_s))  # fmt: skip
+        self.report.kept += len(shifted)
+        # keep the undecided tail
+        keep = (t[cut:], g[cut:], a[cut:], temp[cut:], ok[cut:])
+        self._chunks = [keep] if len(keep[0]) else []
+        self._buffered = len(keep[0])
+        self._offset += cut
+        return shifted
+
+
+def _shift(w: Window, index_offset: int, time_offset: float) -> Window:
+    return replace(
+        w,
+        start_s=w.start_s + time_offset,
+        end_s=w.end_s + time_offset,
+        start_index=w.start_index + index_offset,
+        end_index=w.end_index + index_offset,
+    )

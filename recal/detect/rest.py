@@ -1,0 +1,212 @@
+"""At rest in physics: what a still unit must read, and whether a window's means agree.
+
+A moving-variance test cannot see a steady turn (the rate is constant) or a slow swing; physics
+can. At rest the gyro triad measures Earth's rate and the accelerometer triad local gravity,
+whatever the orientation (docs/reference.md#rest). A window is at rest only if the norm of its
+mean rate is Earth's rate, and the norm of its mean specific force is gravity, within
+
+* the window's own noise (``k_sigma`` standard errors of the norm), and
+* the plausible range of the unit's coefficients: ``k_coeff`` times the prior's 1-sigma (or the
+  sensor class's default, :data:`recal.solve.consider.DEFAULT_PRIOR_SIGMA`), applied to the
+  norm: a scale error moves it by s |w|, a bias by up to sqrt(3) b, a misalignment by E |w|.
+
+A window that fails is rejected with a reason of its own (:data:`REST_REASONS`): ``turning`` (the
+excess rate lies mostly along gravity: a heading change), ``swinging`` (about a horizontal axis:
+a net roll or pitch change), ``rate_low`` (less than Earth's rate: no motion does that; a unit or
+rate setting is wrong, or the window is not what it seems), ``accelerating`` (the specific force
+is not gravity: heave, surge, a crane, a vehicle). Pure numpy; used by the static detector
+(:mod:`recal.detect.static`) and the hull detector (:mod:`recal.detect.hull`) alike, so
+``recal positions`` and the daemon share the one rule.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from recal.model.coefficients import CoefficientSet
+from recal.model.reference import OMEGA_IE_DEG_H, normal_gravity_g
+
+#: Rejection reasons a rest check can give, in the order the reports list them.
+REST_REASONS = ("turning", "swinging", "rate_low", "accelerating")
+
+#: Class defaults, 1-sigma (recal.solve.consider's "navigation" class: a FOG whose window means
+#: show Earth's rate): relative scale, gyro bias deg/h, misalignment rad, accel bias g.
+_NAV_SCALE, _NAV_GYRO_BIAS_DPH, _NAV_MISALIGNMENT, _NAV_ACCEL_BIAS_G = 1e-3, 0.05, 1e-3, 1e-3
+
+
+@dataclass(frozen=True)
+class RestReference:
+    """What a still unit reads and how far its coefficients may be off.
+
+    gyro_scale / accel_scale: (3,) output units per deg/h and per g (K); gyro_bias_dph /
+    accel_bias_g: (3,) the biases b in input units. The ``*_sigma`` fields are 1-sigma: relative
+    for the scales, deg/h and g for the biases, rad for the misalignments. earth_rate_dph and
+    gravity_g are the references at the latitude and height.
+    """
+
+    earth_rate_dph: float
+    gravity_g: float
+    gyro_scale: np.ndarray
+    gyro_bias_dph: np.ndarray
+    accel_scale: np.ndarray
+    accel_bias_g: np.ndarray
+    scale_sigma: float = _NAV_SCALE
+    gyro_bias_sigma_dph: float = _NAV_GYRO_BIAS_DPH
+    accel_bias_sigma_g: float = _NAV_ACCEL_BIAS_G
+    misalignment_sigma: float = _NAV_MISALIGNMENT
+    source: str = "navigation-class defaults"
+    k_coeff: float = 5.0
+    k_sigma: float = 5.0
+
+    @classmethod
+    def nominal(
+        cls,
+        latitude_deg: float,
+        height_m: float = 0.0,
+        gyro_units_per_dph: float = 1.0,
+        accel_units_per_g: float = 1.0,
+    ) -> RestReference:
+        """A unit that outputs physical units (a KVH: deg/h and g), no prior: K nominal, b = 0,
+        the navigation class's 1-sigma."""
+        return cls(
+            earth_rate_dph=OMEGA_IE_DEG_H,
+            gravity_g=normal_gravity_g(latitude_deg, height_m),
+            gyro_scale=np.full(3, float(gyro_units_per_dph)),
+            gyro_bias_dph=np.zeros(3),
+            accel_scale=np.full(3, float(accel_units_per_g)),
+            accel_bias_g=np.zeros(3),
+        )
+
+    @classmethod
+    def from_coefficients(
+        cls, coeffs: CoefficientSet, latitude_deg: float, height_m: float = 0.0
+    ) -> RestReference:
+        """From a prior (a previous calibration) and its ``uncertainty`` where it has one; the
+        navigation class's 1-sigma for what it lacks."""
+        v, u = coeffs.values, getattr(coeffs, "uncertainty", None) or {}
+
+        def largest(name: str, default: float, relative_to: str | None = None) -> float:
+            s = u.get(name)
+            if s is None:
+                return default
+            s = np.abs(np.asarray(s, float))
+            if relative_to is not None:
+                s = s / np.abs(np.asarray(v[relative_to], float))
+            s = s[np.isfinite(s)]
+            return float(s.max()) if s.size else default
+
+        gyro_k = np.asarray(v.get("gyro.scale", np.ones(3)), float)
+        accel_k = np.asarray(v.get("accel.scale", np.ones(3)), float)
+        scale_sigma = (
+            max(
+                largest("gyro.scale", _NAV_SCALE, "gyro.scale") if "gyro.scale" in v else 0.0,
+                largest("accel.scale", _NAV_SCALE, "accel.scale") if "accel.scale" in v else 0.0,
+            )
+            or _NAV_SCALE
+        )
+        return cls(
+            earth_rate_dph=OMEGA_IE_DEG_H,
+            gravity_g=normal_gravity_g(latitude_deg, height_m),
+            gyro_scale=gyro_k,
+            gyro_bias_dph=np.asarray(v.get("gyro.bias", np.zeros(3)), float),
+            accel_scale=accel_k,
+            accel_bias_g=np.asarray(v.get("accel.bias", np.zeros(3)), float),
+            scale_sigma=scale_sigma,
+            gyro_bias_sigma_dph=largest("gyro.bias", _NAV_GYRO_BIAS_DPH),
+            accel_bias_sigma_g=largest("accel.bias", _NAV_ACCEL_BIAS_G),
+            misalignment_sigma=max(
+                largest("gyro.misalignment", _NAV_MISALIGNMENT),
+                largest("accel.misalignment", _NAV_MISALIGNMENT),
+            ),
+            source=str(coeffs.metadata.get("source", "the prior"))
+            if coeffs.metadata
+            else "the prior",
+        )
+
+    # ---- output units -> physics ----------------------------------------------------------
+    def rate_dph(self, gyro_out: np.ndarray) -> np.ndarray:
+        """Output (..., 3) -> angular rate, deg/h (scale and bias only)."""
+        return np.asarray(gyro_out, float) / self.gyro_scale - self.gyro_bias_dph
+
+    def force_g(self, accel_out: np.ndarray) -> np.ndarray:
+        """Output (..., 3) -> specific force, g (scale and bias only)."""
+        return np.asarray(accel_out, float) / self.accel_scale - self.accel_bias_g
+
+    def rate_tolerance_dph(self) -> float:
+        """How far the norm of the rate may be off Earth's rate from the coefficients alone."""
+        w = self.earth_rate_dph
+        return self.k_coeff * math.sqrt(
+            (self.scale_sigma * w) ** 2 + 3.0 * self.gyro_bias_sigma_dph**2
+            + (self.misalignment_sigma * w) ** 2
+        )  # fmt: skip
+
+    def force_tolerance_g(self) -> float:
+        """The same for the specific force's norm against gravity."""
+        g = self.gravity_g
+        return self.k_coeff * math.sqrt(
+            (self.scale_sigma * g) ** 2 + 3.0 * self.accel_bias_sigma_g**2
+            + (self.misalignment_sigma * g) ** 2
+        )  # fmt: skip
+
+    # ---- the test -------------------------------------------------------------------------
+    def judge(
+        self,
+        gyro_out: np.ndarray | None,
+        accel_out: np.ndarray | None,
+        gyro_sem_out: np.ndarray | None = None,
+        accel_sem_out: np.ndarray | None = None,
+        extra_rate_dph: np.ndarray | float = 0.0,
+    ) -> np.ndarray:
+        """One reason per window (``""`` where it is at rest), windows along axis 0.
+
+        gyro_out / accel_out: (n, 3) window means in output units (either may be None);
+        *_sem_out: (n, 3) their standard errors (NaN or None: noise not known, coefficients
+        only). ``extra_rate_dph``: an allowance the caller adds to the rate tolerance (n,) or
+        scalar, deg/h.
+        """
+        n = len(gyro_out) if gyro_out is not None else len(accel_out)  # type: ignore[arg-type]
+        reason = np.full(n, "", dtype=object)
+        if accel_out is not None:
+            f = self.force_g(accel_out)
+            fn = np.linalg.norm(f, axis=1)
+            sem = _norm_sem(f, fn, accel_sem_out, self.accel_scale)
+            bad = np.abs(fn - self.gravity_g) > (self.force_tolerance_g() + self.k_sigma * sem)
+            reason[bad] = "accelerating"
+        if gyro_out is not None:
+            w = self.rate_dph(gyro_out)
+            wn = np.linalg.norm(w, axis=1)
+            sem = _norm_sem(w, wn, gyro_sem_out, self.gyro_scale)
+            tol = self.rate_tolerance_dph() + self.k_sigma * sem + extra_rate_dph
+            high = wn - self.earth_rate_dph > tol
+            low = self.earth_rate_dph - wn > tol
+            if high.any():
+                # Which way the excess points: along gravity (a heading change) or across it.
+                if accel_out is not None:
+                    up = self.force_g(accel_out)
+                    up = up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-12)
+                    vertical = np.abs(np.sum(w * up, axis=1))
+                    horizontal = np.sqrt(np.maximum(wn**2 - vertical**2, 0.0))
+                    # Earth's rate has both parts; the one that exceeds it names the motion
+                    turning = vertical >= horizontal
+                else:
+                    turning = np.ones(n, dtype=bool)
+                reason[high & turning & (reason == "")] = "turning"
+                reason[high & ~turning & (reason == "")] = "swinging"
+            reason[low & (reason == "")] = "rate_low"
+        return reason
+
+
+def _norm_sem(
+    v: np.ndarray, vn: np.ndarray, sem_out: np.ndarray | None, scale: np.ndarray
+) -> np.ndarray:
+    """Standard error of |v| from per-axis standard errors (output units -> input units)."""
+    if sem_out is None:
+        return np.zeros(len(v))
+    s = np.asarray(sem_out, float) / np.abs(scale)
+    s = np.where(np.isfinite(s), s, 0.0)
+    u = v / np.maximum(vn[:, None], 1e-300)
+    # the norm's linear error, plus the chi floor where the vector is near zero
+    return np.sqrt(np.sum((u * s) ** 2, axis=1) + np.where(vn > 0, 0.0, np.sum(s**2, axis=1)))
