@@ -291,6 +291,12 @@ class GateSettings(Section):
         description="weakest observability verdict published: partial (some coefficients held "
         "at the prior) or full",
     )
+    publish_observable_part: bool = Field(
+        False,
+        description="hull-fixed unit: publish what the windows show when some scale and bias "
+        "cannot be separated (verdict insufficient counts as partial), the rest held at the "
+        "prior, with a note naming the held coefficients",
+    )
     allow_jump: bool = Field(
         False, description="accept changes beyond max_change_sigma (after a repair), with a note"
     )

@@ -4,7 +4,8 @@ A calibration is rejected when its design is not observable enough, its residual
 noise, a scale factor is poorly determined, an estimated coefficient jumped too far from the
 current accepted version, or effects beyond the seed model moved the core coefficients by more
 than diagnose trusts without a check (:func:`recal.diagnose.effects.effects_check`). Every decision
-carries plain-English reasons.
+carries plain-English reasons. ``publish_observable_part`` lets a hull-fixed unit's fit (some scale
+and bias not separable: verdict insufficient) through with a note naming what it held.
 """
 
 from __future__ import annotations
@@ -65,13 +66,14 @@ def gate(
     names = result.layout.names
     values = dict(zip(names, (float(v) for v in result.theta), strict=True))
     estimated, sigma = _flat_result(result)
-    problems = _check_verdict(result, cfg) + _check_chi2(result, cfg)
+    problems, partial = _check_verdict(result, cfg, names, estimated)
+    problems += _check_chi2(result, cfg)
     problems += _check_scales(names, values, estimated, sigma, cfg)
     problems += _check_navigation(impact, cfg)
     unconfirmed = _check_effects(effects_check)
-    allowed = []  # notes when allowed, else reasons to refuse
+    allowed = partial  # notes on what the settings allowed (else they are reasons to refuse)
     if cfg.allow_unconfirmed_effects:
-        allowed = [f"{u}; allowed (allow_unconfirmed_effects)" for u in unconfirmed]
+        allowed += [f"{u}; allowed (allow_unconfirmed_effects)" for u in unconfirmed]
     else:
         problems += unconfirmed
     if previous is None:
@@ -112,14 +114,27 @@ def _check_effects(check: Mapping[str, Any] | None) -> list[str]:
     return [str(check.get("warning") or f"effects {check.get('effects')} are not confirmed")]
 
 
-def _check_verdict(result: CalibrationResult, cfg: GateConfig) -> list[str]:
+def _check_verdict(
+    result: CalibrationResult, cfg: GateConfig, names: list[str], estimated: Mapping[str, bool]
+) -> tuple[list[str], list[str]]:
+    """(reasons to refuse, notes). With ``publish_observable_part`` an insufficient verdict (a
+    hull-fixed unit: some scale and bias not separable) counts as partial when something is
+    estimated; the note names what was held at the prior."""
     verdict = result.observability.verdict
     if VERDICTS.index(verdict) >= VERDICTS.index(cfg.require_verdict):
-        return []
-    return [
-        f"observability verdict is {verdict} ({result.observability.message}); "
-        f"{cfg.require_verdict} or better is required"
-    ]
+        return [], []
+    said = f"observability verdict is {verdict} ({result.observability.message})"
+    held = [n for n in names if not estimated[n]]
+    observable_part = verdict == "insufficient" and cfg.require_verdict == "partial"
+    if cfg.publish_observable_part and observable_part and len(held) < len(names):
+        return [], [
+            f"{said}; the observable part is published (publish_observable_part): "
+            f"{len(held)} coefficient(s) held at the prior: {', '.join(held)}"
+        ]
+    why = f"{cfg.require_verdict} or better is required"
+    if cfg.publish_observable_part and observable_part:
+        why = "nothing is estimated, so there is no observable part to publish"
+    return [f"{said}; {why}"], []
 
 
 def _check_navigation(impact: NavigationImpact | None, cfg: GateConfig) -> list[str]:

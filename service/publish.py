@@ -31,7 +31,9 @@ log = logging.getLogger("recal.publish")
 
 
 def payload(record: CalibrationRecord) -> dict[str, Any]:
-    """The published object: version, creation time and the coefficient sections."""
+    """The published object: version, creation time, the coefficient sections and what was held
+    at the prior (``held``: flat name -> the prior's value and 1-sigma; null in versions stored
+    before jobs recorded it, whose ``status`` still says which were held)."""
     if record.version is None:
         raise ValueError("only a stored calibration (with a version) can be published")
     doc = record.document
@@ -41,6 +43,7 @@ def payload(record: CalibrationRecord) -> dict[str, Any]:
         "coefficients": doc.get("coefficients"),
         "status": doc.get("status"),
         "uncertainty": doc.get("uncertainty"),
+        "held": doc.get("held"),
     }
 
 

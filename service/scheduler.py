@@ -226,7 +226,11 @@ class Scheduler:
                 slews=slews,
             )
             try:  # a design the engine would refuse is refused now, with its reason
-                check_design(positions, options, partial_ok=False)
+                # a hull-fixed unit may publish what it shows ([gate] publish_observable_part)
+                observable_part = (
+                    s.gate.publish_observable_part and s.gate.require_verdict == "partial"
+                )
+                check_design(positions, options, partial_ok=observable_part)
             except RecalInputError as exc:
                 raise SchedulerRefused(
                     f"the {len(ids)} stored positions cannot be used: {exc}"

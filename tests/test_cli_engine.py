@@ -103,6 +103,38 @@ def test_degenerate_heading_only_design(tmp_path, capsys):
     assert "partial calibration" in out and "gyro.scale.Kz" in out
 
 
+def test_calibrate_json_gives_the_heading_error_before_and_after(tmp_path, capsys):
+    """A hull-fixed unit with a prior of 0.01 deg/h: the "navigation" block and the report."""
+    path, truth = tmp_path / "vessel.csv", tmp_path / "truth.json"
+    assert main(["simulate", "--design", "vessel", "--positions", "24", "--seed", "1",
+                 "-o", str(path), "--truth-out", str(truth)]) == 0  # fmt: skip
+    prior = json.loads(truth.read_text())  # within 100 ppm, 0.01 deg/h, 20 ug, 0.1 mrad
+    mis = dict.fromkeys(prior["gyro"]["misalignment"], 1e-4)
+    prior["uncertainty"] = {
+        "gyro": {"scale": [k * 1e-4 for k in prior["gyro"]["scale"]], "bias": [0.01] * 3,
+                 "misalignment": mis},
+        "accel": {"scale": [1e-4] * 3, "bias": [2e-5] * 3, "misalignment": mis,
+                  "quadratic": [1e-5] * 3},
+    }  # fmt: skip
+    (tmp_path / "prior.json").write_text(json.dumps(prior))
+    capsys.readouterr()
+    report = tmp_path / "cal.html"
+    args = ["calibrate", str(path), "--latitude", "45", "--prior", str(tmp_path / "prior.json")]
+    assert main([*args, "--json", "--report", str(report)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    for key in ("coefficients", "status", "uncertainty", "observability", "residuals"):
+        assert key in doc  # the stable keys stay
+    nav = doc["navigation"]
+    assert nav["before"]["from"] == f"the prior {tmp_path / 'prior.json'}"
+    assert nav["before"]["heading_error_deg_rms"] == pytest.approx(0.0539, abs=1e-4)
+    assert nav["after"]["heading_error_deg_rms"] < nav["before"]["heading_error_deg_rms"]
+    assert nav["after"]["heading_error_deg_worst"] >= nav["after"]["heading_error_deg_rms"]
+    assert nav["after"]["position_error_nmi_1sigma"] > 0
+    assert "Navigation</b>: gyrocompass heading error" in report.read_text()
+    assert main(args) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == f"navigation: {nav['summary']}"
+
+
 def test_unreadable_inputs(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "nope.csv"), "--latitude", "0"]) == 2
     assert "does not exist" in capsys.readouterr().err

@@ -8,7 +8,8 @@ browser on the vessel's computer and can be attached to an e-mail. The caller wr
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -303,9 +304,14 @@ def _singular_values(s: np.ndarray, names_kept: int, info_min: float) -> str:
     return figure_svg(fig)
 
 
-def calibration_html(result: CalibrationResult, title: str = "recal calibrate") -> str:
+def calibration_html(
+    result: CalibrationResult,
+    title: str = "recal calibrate",
+    navigation: Mapping[str, Any] | None = None,
+) -> str:
     """A self-contained HTML page for one calibration: coefficients with status and 1-sigma,
-    residual per position before and after, and the observability spectrum."""
+    residual per position before and after, and the observability spectrum; ``navigation``
+    (the calibrate JSON's ``"navigation"`` block) adds the heading and position error figures."""
     from recal.solve.observability import INFO_MIN
 
     esc = html.escape
@@ -340,6 +346,7 @@ def calibration_html(result: CalibrationResult, title: str = "recal calibrate") 
 deg, chi2_red {result.chi2_red:.3g}. Observability: <b>{esc(obs.verdict)}</b> &mdash;
 {esc(obs.message)}</p>
 <p>Prior: {esc(result.prior_source)}. 1-sigma: {esc(doc["uncertainty_kind"])}.</p>
+{_navigation_paragraph(navigation)}
 {f"<ul>{notes}</ul>" if notes else ""}
 <h2>Coefficients</h2>
 <table><tr><th>coefficient</th><th>value</th><th>1-sigma</th><th>status</th><th>unit</th></tr>
@@ -355,3 +362,10 @@ Directions held at the prior:</p><ul>{held}</ul>
 {_singular_values(obs.singular_values, obs.rank, INFO_MIN)}
 """,
     )
+
+
+def _navigation_paragraph(navigation: Mapping[str, Any] | None) -> str:
+    """The navigator's figures (docs/navigation.md#heading), or nothing."""
+    if not navigation or not isinstance(navigation.get("summary"), str):
+        return ""
+    return f"<p><b>Navigation</b>: {html.escape(navigation['summary'])}.</p>"

@@ -348,6 +348,10 @@ def run(args: argparse.Namespace) -> int:
     doc = result.to_json_dict()
     if check is not None:
         doc["effects_check"] = check
+    # heading and position error, before (the prior) and after, in a navigator's units
+    from service.recalibration import navigation_summary
+
+    doc["navigation"] = navigation_summary(result, prior_name=args.prior)
     # the full covariance beside the 1-sigma values: recal drift whitens with it (docs/drift.md)
     from recal.diagnose.drift import covariance_to_json
 
@@ -358,12 +362,13 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         from recal.report.html import calibration_html
 
-        atomic_write(args.report, calibration_html(result, f"recal calibrate {args.positions}"))
+        title = f"recal calibrate {args.positions}"
+        atomic_write(args.report, calibration_html(result, title, doc["navigation"]))
         print(f"recal calibrate: wrote the report to {args.report}", file=sys.stderr)
     if args.json:
         print_json(doc)
     else:
-        sys.stdout.write(format_result(result))
+        sys.stdout.write(format_result(result) + f"navigation: {doc['navigation']['summary']}\n")
     return 0
 
 

@@ -88,3 +88,37 @@ def test_drift_series_is_the_drift_events_and_the_last_reason(sqlite_store, tmp_
     assert out["last_reason"]["text"] == (
         "drift: statistic 40.0 > 17.5, looks like accel x bias, about +5 micro-g"
     )
+
+
+def test_the_page_shows_the_versions_heading_error(sqlite_store, tmp_path):
+    """The current version's ``navigation`` block reaches the page through ``/coefficients``,
+    and every figure the script reads from it is one the service writes."""
+    import re
+    from datetime import UTC, datetime
+
+    from service.db import CalibrationRecord
+    from service.gate import GateConfig
+    from service.recalibration import calibration_job
+
+    truth = kvh_like_truth(2)
+    pos = simulate_positions(truth, "vessel", n_positions=24, latitude_deg=45, seed=2)
+    prior = truth.copy()  # a hull-fixed unit needs its prior for what the turns cannot show
+    prior.uncertainty = {n: np.full(np.size(v), 1e-4) for n, v in truth.values.items()}
+    prior.uncertainty["gyro.bias"] = np.full(3, 0.01)
+    options = CalibrationOptions(latitude_deg=45, prior=prior)
+    gate = GateConfig(publish_observable_part=True).model_dump()
+    outcome = calibration_job(pos.columns, options, None, gate)
+    assert outcome.accepted, outcome.reasons
+    sqlite_store.add_calibration(CalibrationRecord(
+        version=None, created_at=datetime.now(UTC), trigger="manual", method="lm", accepted=True,
+        reasons=outcome.reasons, document=outcome.document, positions_used=[],
+        prior_version=None))  # fmt: skip
+    client = TestClient(create_app(sqlite_store, Publisher(tmp_path / "c.json")))
+    nav = client.get("/coefficients").json()["document"]["navigation"]
+    assert 0 < nav["after"]["heading_error_deg_rms"] < nav["before"]["heading_error_deg_rms"]
+    script = client.get("/dashboard/static/app.js").text
+    assert "renderNavImpact(doc.navigation_impact, rec.reasons || [], doc.navigation)" in script
+    read = set(re.findall(r"\b(?:after|before)\??\.(\w+)", script))
+    assert {"heading_error_deg_rms", "heading_error_deg_worst", "from"} <= read
+    assert read <= set(nav["after"]) | set(nav["before"]), read
+    assert "gyrocompass heading error" in script

@@ -118,3 +118,55 @@ def test_a_poorly_determined_scale_is_rejected(calibration_result: CalibrationRe
 def test_bad_config_is_refused() -> None:
     with pytest.raises(ValueError, match="require_verdict"):
         GateConfig(require_verdict="insufficient")
+
+
+@pytest.fixture(scope="module")
+def hull_fixed() -> CalibrationResult:
+    """A hull-fixed unit (vessel design: heading turns, small tilts) with a good prior: the
+    vertical gyro scale and the accel scales cannot be told from their biases."""
+    prior = TRUTH.copy()
+    prior.uncertainty = {n: np.abs(np.asarray(v, float)) * 1e-4 + 1e-5
+                         for n, v in TRUTH.values.items()}  # fmt: skip
+    prior.uncertainty["gyro.bias"] = np.full(3, 0.01)
+    positions = simulate_positions(TRUTH, design="vessel", n_positions=24, seed=5)
+    return calibrate(positions, CalibrationOptions(latitude_deg=45.0, prior=prior))
+
+
+def test_a_hull_fixed_fit_is_rejected_by_default(hull_fixed: CalibrationResult) -> None:
+    assert hull_fixed.observability.verdict == "insufficient"
+    decision = gate(hull_fixed, None)
+    assert not decision.accepted
+    assert decision.reasons[0].startswith("observability verdict is insufficient (")
+    assert decision.reasons[0].endswith("partial or better is required")
+
+
+def test_publish_observable_part_accepts_it_naming_the_held_coefficients(
+    hull_fixed: CalibrationResult, previous: CalibrationRecord
+) -> None:
+    cfg = GateConfig(publish_observable_part=True)
+    held = [f"{t}.{p}" for t, st in hull_fixed.status.items()
+            for p, s in zip(hull_fixed.terms[t].params, st, strict=True) if s == "held"]  # fmt: skip
+    assert "gyro.scale.Kz" in held and "accel.scale.Kx" in held
+    for prev in (None, previous):
+        decision = gate(hull_fixed, prev, cfg)
+        assert decision.accepted, decision.reasons
+        note = next(r for r in decision.reasons if "publish_observable_part" in r)
+        assert note.startswith("observability verdict is insufficient (")
+        assert note.endswith(f"{len(held)} coefficient(s) held at the prior: {', '.join(held)}")
+    # every other limit still applies
+    strict = GateConfig(publish_observable_part=True, max_relative_scale_sigma=1e-9)
+    decision = gate(hull_fixed, None, strict)
+    assert not decision.accepted and decision.reasons[0].startswith("gyro.scale.Kx 1-sigma")
+    # require_verdict = "full" wins: the setting lets insufficient count as partial, no more
+    assert not gate(hull_fixed, None, GateConfig(publish_observable_part=True,
+                                                 require_verdict="full")).accepted  # fmt: skip
+
+
+def test_publish_observable_part_needs_something_estimated(hull_fixed: CalibrationResult) -> None:
+    status = {n: np.full(s.shape, "held") for n, s in hull_fixed.status.items()}
+    nothing = dataclasses.replace(hull_fixed, status=status)
+    decision = gate(nothing, None, GateConfig(publish_observable_part=True))
+    assert not decision.accepted
+    assert decision.reasons[0].endswith(
+        "nothing is estimated, so there is no observable part to publish"
+    )

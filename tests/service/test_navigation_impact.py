@@ -135,3 +135,30 @@ def test_an_older_record_without_an_impact_is_recomputed(
     assert impact.accepted_error_m_1sigma is not None
     assert 0.2 < impact.accepted_error_m_1sigma / stored < 5
     assert np.isfinite(impact.error_m_1sigma / NMI_M)
+
+
+def test_a_version_carries_heading_and_position_error_before_and_after(
+    accepted: CalibrationRecord,
+) -> None:
+    """``navigation``: after from the version's own uncertainty, before from the accepted version
+    it replaces (its stored figures), or from the prior for the first one."""
+    first = accepted.document["navigation"]
+    assert first["before"]["from"].startswith("no prior: the navigation sensor class's default")
+    impact = accepted.document["navigation_impact"]
+    assert first["after"]["position_error_nmi_1sigma"] == pytest.approx(
+        impact["static_24h_error_nmi_1sigma"], rel=1e-9
+    )
+    before, after = first["before"], first["after"]
+    assert before["position_error_nmi_1sigma"] > after["position_error_nmi_1sigma"]
+    assert after["heading_error_deg_rms"] < before["heading_error_deg_rms"]
+    positions = simulate_positions(TRUTH, design="24", latitude_deg=LAT, seed=5)
+    nav = _job(positions, accepted).document["navigation"]
+    assert nav["before"]["from"] == "version 6"
+    for key in ("heading_error_deg_rms", "heading_error_deg_worst", "east_bias_deg_h_rms"):
+        assert nav["before"][key] == first["after"][key]
+    assert nav["before"]["position_error_nmi_1sigma"] == pytest.approx(
+        impact["static_24h_error_nmi_1sigma"], rel=1e-9
+    )
+    assert nav["latitude_deg"] == LAT and nav["hours"] == 24.0
+    assert nav["summary"].startswith("gyrocompass heading error ")
+    assert "before: version 6" in nav["summary"]

@@ -24,12 +24,22 @@ def test_file_holds_the_published_object(tmp_path: Path, make_record: MakeRecord
     obj = pub.publish(record)
     on_disk = json.loads(pub.path.read_text())
     assert on_disk == obj == pub.latest
-    assert set(obj) == {"version", "created_at", "coefficients", "status", "uncertainty"}
+    assert set(obj) == {"version", "created_at", "coefficients", "status", "uncertainty", "held"}
+    assert obj["held"] is None  # a document from before jobs recorded what they held
     assert obj["version"] == 7 and obj["created_at"] == record.created_at.isoformat()
     assert obj["coefficients"] == record.document["coefficients"]
     assert obj["uncertainty"] == record.document["uncertainty"]
     assert os.stat(pub.path).st_mode & 0o777 == 0o644
     assert os.listdir(pub.path.parent) == ["coefficients.json"]  # no temporary files left
+
+
+def test_the_file_carries_what_was_held_at_the_prior(
+    tmp_path: Path, make_record: MakeRecord, document: dict
+) -> None:
+    held = {"gyro.scale.Kz": {"prior": 645.2, "prior_sigma": 0.0645}}
+    record = make_record(version=2, document={**document, "held": held})
+    obj = Publisher(tmp_path / "c.json").publish(record)
+    assert obj["held"] == held and obj["status"] == document["status"]
 
 
 def test_a_failed_write_keeps_the_old_file(

@@ -105,7 +105,7 @@ function renderCurrent() {
   $("version-meta").textContent = `${when} · ${rec.trigger} trigger · ${rec.method} · ${rec.positions_used.length} windows${chi}${obs}`
     + (rec.prior_version ? ` · previous v${rec.prior_version}` : "");
   $("reasons").replaceChildren(...(rec.reasons || []).map((r) => el("li", {}, r)));
-  renderNavImpact(doc.navigation_impact, rec.reasons || []);
+  renderNavImpact(doc.navigation_impact, rec.reasons || [], doc.navigation);
   const prev = state.previous ? new Map(flatten(state.previous.document).map((r) => [r.id, r])) : new Map();
   const changeHead = state.previous ? `Δ vs v${state.previous.version} (σ)` : "Δ (σ)";
   const rows = flatten(doc);
@@ -144,11 +144,11 @@ function coefficientRow(row, p) {
     el("td", { className: `status-${row.status}` }, row.status || "-"));
 }
 
-function renderNavImpact(impact, reasons) {
+function renderNavImpact(impact, reasons, nav) {
   const box = $("nav-impact");
-  if (!impact || typeof impact !== "object") { box.hidden = true; box.replaceChildren(); return; }
   const figure = (value, label) => el("div", { className: "figure" }, el("b", {}, value), el("span", {}, label));
-  const parts = [el("h2", {}, "Navigation impact")];
+  const parts = [el("h2", {}, "Navigation impact"), ...headingFigures(nav, figure)];
+  if (!impact || typeof impact !== "object") { box.replaceChildren(...parts); box.hidden = parts.length < 2; return; }
   const nmi = impact.static_24h_error_nmi_1sigma, m = impact.static_24h_error_m_1sigma;
   if (isNum(nmi)) parts.push(figure(`${nmi.toFixed(2)} nmi`, "24 h static position error, 1σ"));
   if (isNum(m)) parts.push(figure(`${Math.round(m)} m`, "same, in metres"));
@@ -160,11 +160,33 @@ function renderNavImpact(impact, reasons) {
     if (isNum(ch.accepted_error_nmi_1sigma)) {
       parts.push(figure(`${ch.accepted_error_nmi_1sigma.toFixed(2)} nmi`, `${from}'s own 1σ`));
     }
+  } else if (nav && typeof nav === "object" && isNum(nav.before?.position_error_nmi_1sigma)) {
+    parts.push(figure(`${nav.before.position_error_nmi_1sigma.toFixed(2)} nmi`, `position error before (${nav.before.from})`));
   }
   // the gate's notes already carry the sentence once there is a previous version
   if (typeof impact.summary === "string" && !reasons.includes(impact.summary)) parts.push(el("p", { className: "impact-summary" }, impact.summary));
   box.replaceChildren(...parts);
   box.hidden = parts.length < 2;
+}
+
+// The gyrocompass heading error the horizontal gyro biases leave (document.navigation, written by
+// service.recalibration.navigation_summary): this version's, and before it (the previous
+// version's, or the prior's for the first one).
+function headingFigures(nav, figure) {
+  if (!nav || typeof nav !== "object") return [];
+  const deg = (v) => `${v >= 1 ? v.toFixed(2) : v.toPrecision(2)}°`;
+  const after = nav.after || {}, before = nav.before || {};
+  if (!isNum(after.heading_error_deg_rms)) {
+    return typeof nav.heading_error_unavailable === "string"
+      ? [figure("-", `heading error: ${nav.heading_error_unavailable}`)] : [];
+  }
+  const out = [figure(deg(after.heading_error_deg_rms), "gyrocompass heading error, 1σ RMS over headings")];
+  if (isNum(after.heading_error_deg_worst)) out.push(figure(deg(after.heading_error_deg_worst), "same, at the worst heading"));
+  if (isNum(before.heading_error_deg_rms)) {
+    const from = typeof before.from === "string" ? before.from : "before";
+    out.push(figure(deg(before.heading_error_deg_rms), `heading error before (${from})`));
+  }
+  return out;
 }
 
 // ---- history -----------------------------------------------------------------------------------
