@@ -118,9 +118,11 @@ _KVH_OPTIONS = (
     FormatOption("gyro_units", "rad (default) or deg", flag="--gyro-units"),
     FormatOption("temperature_units", "degC (default) or centi", flag="--temp-units"),
 )
+#: The parser of the KVH frame formats (drivers.kvh): the formats a simulated capture is written in.
+KVH_PARSER = "drivers.kvh_stream:kvh_parser"
 _KVH = {
     "framing": "binary",
-    "parser": "drivers.kvh_stream:kvh_parser",
+    "parser": KVH_PARSER,
     "options": _KVH_OPTIONS,
     "units": ("deg/h", "g"),
     "has_status": True,
@@ -205,6 +207,12 @@ def input_formats() -> list[InputFormat]:
 
 def input_format_names() -> list[str]:
     return [f.name for f in input_formats()]
+
+
+def kvh_format_names() -> list[str]:
+    """The registered formats read by the KVH frame parser: those a simulated KVH capture can be
+    written in (``recal simulate --capture-format``, ``service.capture_sim``)."""
+    return [f.name for f in input_formats() if f.parser == KVH_PARSER]
 
 
 def get_input_format(name: str | InputFormat) -> InputFormat:

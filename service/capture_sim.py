@@ -24,11 +24,12 @@ from drivers import (
     physical_to_raw_gyro,
     physical_to_raw_temperature,
 )
+from drivers.registry import kvh_format_names
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import Session
 
-#: KVH data formats a capture can be written in.
-CAPTURE_FORMATS = ("kvh-a", "kvh-b", "kvh-c")
+#: KVH data formats a capture can be written in (the registry's KVH input formats).
+CAPTURE_FORMATS = tuple(kvh_format_names())
 _STATUS_ALL_VALID = 0x77
 
 
@@ -141,19 +142,7 @@ def session_to_kvh(
     rng = np.random.default_rng(rng)
     f = get_format(fmt)
     n = len(session)
-    index = np.arange(n, dtype=np.int64)
-    timestamp = None
-    if "timestamp" in f.fields:
-        timestamp = np.rint(index * (1e6 / session.rate_hz)).astype(np.int64)
-    data = encode_frames(
-        f,
-        gyro=physical_to_raw_gyro(session.gyro_out, config),
-        accel_g=session.accel_out,
-        seq=index,
-        temperature_raw=physical_to_raw_temperature(session.temperature_c, config),
-        status=_STATUS_ALL_VALID,
-        timestamp_us=timestamp,
-    )
+    data = encode_kvh(session.gyro_out, session.accel_out, session.temperature_c, fmt, config)
     L = f.length
     if damage.frames > n - 1:
         raise ValueError(f"damage touches {damage.frames} frames; the session has {n}")
@@ -185,6 +174,37 @@ def session_to_kvh(
         garbage=_rows(garbage_at, offset, length),
     )
     return stream.tobytes(), info
+
+
+def encode_kvh(
+    gyro_out: np.ndarray,
+    accel_out: np.ndarray,
+    temperature_c: np.ndarray,
+    fmt: str = "kvh-a",
+    config: DecoderConfig | None = None,
+    first_frame: int = 0,
+) -> bytes:
+    """Undamaged KVH frames of samples ``first_frame``, ``first_frame + 1``, ... of a recording
+    (gyro in deg/h, accel in g, temperature in degC; ``config`` as in :func:`session_to_kvh`,
+    default 1000 Hz): a long recording encoded chunk by chunk gives the bytes of the whole one
+    (sequence numbers and Format B timestamps run on)."""
+    if fmt not in CAPTURE_FORMATS:
+        raise ValueError(f"capture format must be one of {', '.join(CAPTURE_FORMATS)}, not {fmt!r}")
+    config = DecoderConfig() if config is None else config
+    f = get_format(fmt)
+    index = first_frame + np.arange(np.shape(gyro_out)[0], dtype=np.int64)
+    timestamp = None
+    if "timestamp" in f.fields:
+        timestamp = np.rint(index * (1e6 / config.rate_hz)).astype(np.int64)
+    return encode_frames(
+        f,
+        gyro=physical_to_raw_gyro(gyro_out, config),
+        accel_g=accel_out,
+        seq=index,
+        temperature_raw=physical_to_raw_temperature(temperature_c, config),
+        status=_STATUS_ALL_VALID,
+        timestamp_us=timestamp,
+    )
 
 
 def kvh_like_truth(rng: np.random.Generator | int | None = None) -> CoefficientSet:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import stat
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
@@ -75,6 +77,15 @@ def read_text(path: str | os.PathLike[str], what: str = "file", empty_ok: bool =
 def atomic_write(path: str | os.PathLike[str], content: str | bytes) -> None:
     """Write ``content`` (text as UTF-8, or bytes) to ``path`` via a temporary file in the same
     folder and a rename, so a failure never leaves a half-written file under the final name."""
+    with atomic_stream(path) as fh:
+        fh.write(content.encode("utf-8") if isinstance(content, str) else content)
+
+
+@contextlib.contextmanager
+def atomic_stream(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
+    """A file written in pieces (a long simulated recording), atomically: the block writes bytes
+    to a temporary file in the same folder, renamed to ``path`` when the block ends and removed
+    if it raises."""
     p = Path(path)
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
@@ -83,7 +94,7 @@ def atomic_write(path: str | os.PathLike[str], content: str | bytes) -> None:
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a report or CSV is for sharing
         with os.fdopen(fd, "wb") as fh:
-            fh.write(content.encode("utf-8") if isinstance(content, str) else content)
+            yield fh
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

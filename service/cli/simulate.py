@@ -3,12 +3,15 @@
 Without ``--capture`` the window means are drawn directly (:mod:`recal.sim.simulate`). With
 ``--capture OUT.bin`` every sample is simulated (:mod:`recal.sim.session`: holds joined by slews) and
 written as the frames a KVH sends (:mod:`service.capture_sim`), optionally damaged; ``-o`` then
-writes the true window means of the same session's holds.
+writes the true window means of the same session's holds. ``--berth`` and ``--indexing`` simulate
+a hull-fixed unit on a vessel sample by sample (:mod:`recal.sim.vessel`), streamed to a CSV
+recording and/or a KVH capture chunk by chunk, so a week needs no more memory than ten minutes.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -38,6 +41,31 @@ CAPTURE_SLEW_S = 5.0
 #: Sample rate of a simulated trajectory when not given: hours of samples are held in memory.
 TRAJECTORY_RATE_HZ = 100.0
 TRAJECTORIES = ("voyage", "static")
+
+#: recal.sim.vessel defaults (VesselSpec.berth, VesselSpec.indexing, SeaState), repeated here so
+#: that building the parser imports no numpy (tests/test_cli_simulate_vessel.py checks they match):
+#: the issue-25 scenario, 12 holds of 10 min joined by 30-degree turns of 60 s in a 0.3-degree sea,
+#: sampled by a KVH 1750-class FOG at 100 Hz.
+VESSEL_HOLDS = 12
+VESSEL_HOLD_S = 600.0
+VESSEL_TURN_DEG = 30.0
+VESSEL_TURN_S = 60.0
+VESSEL_INDEX_S = 20.0
+VESSEL_ROLL_DEG = 0.3
+VESSEL_ROLL_PERIOD_S = 8.0
+VESSEL_PITCH_PERIOD_S = 6.0
+VESSEL_YAW_SWING_DEG = 0.1
+VESSEL_YAW_PERIOD_S = 180.0
+VESSEL_HEAVE_PERIOD_S = 8.0
+VESSEL_ARW_DEG_RT_H = 0.012
+#: Seconds of samples simulated and written at a time.
+VESSEL_CHUNK_S = 600.0
+
+
+def _capture_formats() -> list[str]:
+    from drivers.registry import kvh_format_names  # light: no numpy
+
+    return kvh_format_names()
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -92,8 +120,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--arw",
         type=float,
-        default=DEFAULT_ARW_DEG_RT_H,
-        help="gyro angle random walk, deg/sqrt(h) (default %(default)s)",
+        default=None,
+        help=f"gyro angle random walk, deg/sqrt(h) (default {DEFAULT_ARW_DEG_RT_H:g}; "
+        f"{VESSEL_ARW_DEG_RT_H:g}, a KVH 1750-class FOG, with --berth or --indexing)",
     )
     p.add_argument(
         "--vrw",
@@ -120,13 +149,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=float,
         default=None,
         help=f"sample rate, Hz; with --capture the device's data rate (default "
-        f"{DEFAULT_RATE_HZ:g}; {TRAJECTORY_RATE_HZ:g} with --trajectory)",
+        f"{DEFAULT_RATE_HZ:g}; {TRAJECTORY_RATE_HZ:g} with --trajectory, --berth or --indexing)",
     )
     p.add_argument(
         "--temp-start",
         type=float,
         default=DEFAULT_TEMP_START_C,
-        help=f"temperature at the start of the session, degC (default {DEFAULT_TEMP_START_C:g})",
+        help=f"temperature at the start of the session, degC; --berth and --indexing keep it "
+        f"constant (default {DEFAULT_TEMP_START_C:g})",
     )
     p.add_argument(
         "--temp-slope",
@@ -149,7 +179,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "-o",
         "--output",
         metavar="POSITIONS.csv",
-        help="positions CSV (with --capture: the true means over each static hold)",
+        help="positions CSV (with --capture: the true means over each static hold; with "
+        "--berth or --indexing: the CSV recording, as --recording)",
     )
     c = p.add_argument_group("byte-level capture")
     c.add_argument(
@@ -159,7 +190,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--capture-format",
-        choices=("kvh-a", "kvh-b", "kvh-c"),
+        choices=_capture_formats(),
         default="kvh-a",
         help="frame format of the capture (default %(default)s)",
     )
@@ -177,6 +208,130 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--garbage", type=int, default=0, metavar="N", help="runs of random bytes inserted"
     )
     c.add_argument("--drop", type=int, default=0, metavar="N", help="frames dropped entirely")
+    v = p.add_argument_group(
+        "hull-fixed vessel, sample by sample (recal.sim.vessel; shared/spec/vessel.md)"
+    )
+    v.add_argument(
+        "--berth",
+        action="store_true",
+        help="simulate a FOG bolted to a moored hull: --holds holds of --hold s joined by "
+        "steady --turn-deg turns of --turn-s, in a sea of --roll, --pitch, --yaw-swing and "
+        "--heave; written sample by sample as a CSV recording (-o or --recording, "
+        "docs/reference.md#csv) and/or a KVH capture (--capture), streamed in chunks; the "
+        "truth with --truth-out, the schedule with --track. Defaults: the issue-25 scenario "
+        f"({VESSEL_HOLDS} holds of {VESSEL_HOLD_S / 60:g} min, {VESSEL_TURN_DEG:g}-degree turns "
+        f"of {VESSEL_TURN_S:g} s, roll {VESSEL_ROLL_DEG:g} deg, ARW {VESSEL_ARW_DEG_RT_H:g} "
+        f"deg/sqrt(h), {TRAJECTORY_RATE_HZ:g} Hz). Read it with `recal positions ... --motion "
+        "hull`. (--design vessel is the window-means version: positions only)",
+    )
+    v.add_argument(
+        "--indexing",
+        metavar="STOPS",
+        help="instead of --berth: an IMU on an indexing (rotation-modulation) mechanism in a "
+        "hull that keeps its heading, held at each stop for --hold s and turned between stops "
+        "in --index-s s; STOPS are roll,pitch,yaw of the IMU in the hull in deg, separated by "
+        "'/', e.g. 0,0,0/0,0,90/0,0,180/0,0,270 (whole-turn indexing about the vertical) or "
+        "0,0,0/90,0,0/0,90,0 (tilted stops)",
+    )
+    v.add_argument(
+        "--holds",
+        type=int,
+        default=VESSEL_HOLDS,
+        metavar="N",
+        help="--berth: number of holds (default %(default)s)",
+    )
+    v.add_argument(
+        "--hold",
+        type=float,
+        default=VESSEL_HOLD_S,
+        metavar="S",
+        help="length of each hold (each stop with --indexing), s (default %(default)g)",
+    )
+    v.add_argument(
+        "--turn-deg",
+        type=float,
+        default=VESSEL_TURN_DEG,
+        metavar="DEG",
+        help="--berth: heading change of each turn between holds, deg (default %(default)g)",
+    )
+    v.add_argument(
+        "--turn-s",
+        type=float,
+        default=VESSEL_TURN_S,
+        metavar="S",
+        help="--berth: length of each turn, s; steady rate with 5 s ramps (default %(default)g)",
+    )
+    v.add_argument(
+        "--index-s",
+        type=float,
+        default=VESSEL_INDEX_S,
+        metavar="S",
+        help="--indexing: time the mechanism takes between stops, s (default %(default)g)",
+    )
+    v.add_argument(
+        "--roll",
+        type=float,
+        default=VESSEL_ROLL_DEG,
+        metavar="DEG",
+        help="peak roll of the hull, deg (default %(default)g; 0 with --pitch 0 --yaw-swing 0 "
+        "is a still hull)",
+    )
+    v.add_argument(
+        "--roll-period",
+        type=float,
+        default=VESSEL_ROLL_PERIOD_S,
+        metavar="S",
+        help="roll period, s (default %(default)g)",
+    )
+    v.add_argument(
+        "--pitch",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="peak pitch of the hull, deg (default half the roll)",
+    )
+    v.add_argument(
+        "--pitch-period",
+        type=float,
+        default=VESSEL_PITCH_PERIOD_S,
+        metavar="S",
+        help="pitch period, s (default %(default)g)",
+    )
+    v.add_argument(
+        "--yaw-swing",
+        type=float,
+        default=VESSEL_YAW_SWING_DEG,
+        metavar="DEG",
+        help="peak slow heading swing at the berth, deg (default %(default)g)",
+    )
+    v.add_argument(
+        "--yaw-period",
+        type=float,
+        default=VESSEL_YAW_PERIOD_S,
+        metavar="S",
+        help="period of the heading swing, s (default %(default)g)",
+    )
+    v.add_argument(
+        "--heave",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="peak heave, m (default %(default)g)",
+    )
+    v.add_argument(
+        "--heave-period",
+        type=float,
+        default=VESSEL_HEAVE_PERIOD_S,
+        metavar="S",
+        help="heave period, s (default %(default)g)",
+    )
+    v.add_argument(
+        "--lever-arm",
+        metavar="X,Y,Z",
+        default="0,0,0",
+        help="the IMU's position from the hull's centre of rotation, forward,right,down in m "
+        "(default 0,0,0); e.g. 0,0,-5 is 5 m above it",
+    )
     t = p.add_argument_group("navigation recording (recal navigate)")
     t.add_argument(
         "--trajectory",
@@ -186,8 +341,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "'static' stays at rest for --duration s. Written with --capture (KVH) or --recording "
         "(csv, docs/reference.md#csv); --track writes the true trajectory",
     )
-    t.add_argument("--recording", metavar="OUT.csv", help="write the samples as a CSV recording")
-    t.add_argument("--track", metavar="TRUTH.csv", help="write the true trajectory (for --truth)")
+    t.add_argument(
+        "--recording",
+        metavar="OUT.csv",
+        help="write the samples as a CSV recording (also with --berth or --indexing)",
+    )
+    t.add_argument(
+        "--track",
+        metavar="TRUTH.csv",
+        help="write the true trajectory (for --truth); with --berth or --indexing the schedule, "
+        "one row per segment (hold, turn, index) with its start and end time and heading",
+    )
     t.add_argument("--moor", type=float, default=900.0, metavar="S", help="voyage: still start, s")
     t.add_argument("--duration", type=float, default=3600.0, metavar="S", help="static: length, s")
     t.add_argument("--longitude", type=float, default=0.0, help="start longitude, deg")
@@ -195,8 +359,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--attitude",
         metavar="R,P,Y",
         default="0,0,0",
-        help="static: roll,pitch,yaw in NED, deg; voyage: the IMU's roll,pitch in the hull and "
-        "the moored heading (default 0,0,0)",
+        help="static: roll,pitch,yaw in NED, deg; voyage and --berth: the IMU's roll,pitch in "
+        "the hull and the starting heading; --indexing: yaw is the hull's heading (default "
+        "0,0,0)",
     )
     p.set_defaults(func=run)
     return p
@@ -211,16 +376,26 @@ def run(args: argparse.Namespace) -> int:
     from recal.sim.simulate import NoiseSpec, TemperatureSpec, simulate_positions
     from service.cli.common import atomic_write, load_coefficients, parse_effects
 
+    vessel = args.berth or args.indexing is not None
     if args.rate is None:
-        args.rate = TRAJECTORY_RATE_HZ if args.trajectory else DEFAULT_RATE_HZ
+        args.rate = TRAJECTORY_RATE_HZ if args.trajectory or vessel else DEFAULT_RATE_HZ
+    if args.arw is None:
+        args.arw = VESSEL_ARW_DEG_RT_H if vessel else DEFAULT_ARW_DEG_RT_H
     if not -90.0 <= args.latitude <= 90.0:  # NaN fails too
         raise RecalInputError(f"--latitude {args.latitude} is outside [-90, 90] deg")
     if not np.isfinite(args.height) or not np.isfinite(args.rate):
         raise RecalInputError("--height and --rate must be finite numbers")
+    if args.trajectory and vessel:
+        raise RecalInputError("--trajectory and --berth/--indexing are different simulations: "
+                              "give one")  # fmt: skip
     if args.trajectory:
         return _run_trajectory(args)
+    if vessel:
+        return _run_vessel(args)
     if args.recording or args.track:
-        raise RecalInputError("--recording and --track need --trajectory voyage|static")
+        raise RecalInputError(
+            "--recording and --track need --trajectory voyage|static, --berth or --indexing"
+        )
     catalogue = catalogue_terms()
     hidden = []
     for name in parse_effects(args.hidden):
@@ -428,6 +603,169 @@ def _run_trajectory(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def _run_vessel(args: argparse.Namespace) -> int:
+    """``--berth`` / ``--indexing``: a hull-fixed unit sample by sample, streamed to disk."""
+    import numpy as np
+
+    from recal.errors import RecalInputError
+    from recal.model.terms import catalogue_terms
+    from recal.nav.alignment import parse_attitude
+    from recal.sim.simulate import NoiseSpec
+    from recal.sim.vessel import SeaState, VesselSpec, vessel_chunks
+    from service.capture_sim import encode_kvh, kvh_like_truth
+    from service.cli.common import atomic_stream, atomic_write, load_coefficients, progress_bar
+
+    mode = "--indexing" if args.indexing is not None else "--berth"
+    if args.berth and args.indexing is not None:
+        raise RecalInputError("--berth and --indexing are different schedules: give one")
+    not_here = [flag for flag, given in (
+        ("--hidden", args.hidden), ("--sensor", args.sensor != "both"),
+        ("--positions", args.positions is not None), ("--window", args.window is not None),
+        ("--slew", args.slew is not None), ("--first-hold", args.first_hold is not None),
+        ("--temp-swing", args.temp_swing != 0.0), ("--bit-flips", args.bit_flips),
+        ("--garbage", args.garbage), ("--drop", args.drop),
+    ) if given]  # fmt: skip
+    if not_here:
+        raise RecalInputError(
+            f"{', '.join(not_here)} do(es) not apply to {mode} (a vessel recording: its holds "
+            "are --hold long, the capture is undamaged)"
+        )
+    if args.output and args.recording and args.output != args.recording:
+        raise RecalInputError("-o and --recording both name the CSV recording: give one")
+    recording = args.recording or args.output
+    if recording is None and args.capture is None:
+        raise RecalInputError(f"{mode} needs -o OUT.csv (a CSV recording), --capture OUT.bin, "
+                              "or both")  # fmt: skip
+    for out in (recording, args.capture, args.track, args.truth_out):
+        folder = Path(out).parent if out is not None else None
+        if folder is not None and str(folder) and not folder.is_dir():
+            raise RecalInputError(f"output folder {folder} does not exist")
+    if args.rate <= 0 or args.arw < 0 or args.vrw < 0:
+        raise RecalInputError("--rate must be positive, --arw and --vrw non-negative")
+    amplitudes = {"--roll": args.roll, "--pitch": args.pitch, "--yaw-swing": args.yaw_swing,
+                  "--heave": args.heave}  # fmt: skip
+    for flag, v in amplitudes.items():
+        if v is not None and not (np.isfinite(v) and v >= 0):
+            raise RecalInputError(f"{flag} must be a non-negative number, not {v}")
+    if not (np.isfinite(args.hold) and args.hold > 0):
+        raise RecalInputError(f"--hold must be positive, not {args.hold}")
+    lever = _triple(args.lever_arm, "--lever-arm")
+    roll, pitch, yaw = parse_attitude(args.attitude)
+    sea = SeaState(
+        roll_deg=args.roll,
+        roll_period_s=args.roll_period,
+        pitch_deg=args.roll / 2.0 if args.pitch is None else args.pitch,
+        pitch_period_s=args.pitch_period,
+        yaw_swing_deg=args.yaw_swing,
+        yaw_period_s=args.yaw_period,
+        heave_m=args.heave,
+        heave_period_s=args.heave_period,
+        lever_arm_m=lever,
+    )
+    if args.indexing is not None:
+        if roll or pitch:
+            raise RecalInputError("with --indexing the stops give the IMU's attitude in the hull: "
+                                  "--attitude takes only the heading (0,0,YAW)")  # fmt: skip
+        stops = [_triple(stop, "--indexing stop") for stop in args.indexing.split("/")]
+        if not (np.isfinite(args.index_s) and args.index_s > 0):
+            raise RecalInputError(f"--index-s must be positive, not {args.index_s}")
+        spec = VesselSpec.indexing(stops, args.hold, args.index_s, sea, heading0_deg=yaw)
+        what = (f"{len(stops)} indexing stops of {args.hold:g} s "
+                f"({args.index_s:g} s between stops)")  # fmt: skip
+    else:
+        if args.holds < 1:
+            raise RecalInputError(f"--holds must be at least 1, not {args.holds}")
+        if not (np.isfinite(args.turn_s) and np.isfinite(args.turn_deg)):
+            raise RecalInputError("--turn-s and --turn-deg must be finite numbers")
+        spec = VesselSpec.berth(args.holds, args.hold, args.turn_s, args.turn_deg, sea,
+                                heading0_deg=yaw, mount_rpy_deg=(roll, pitch, 0.0))  # fmt: skip
+        what = (f"{args.holds} berth holds of {args.hold:g} s joined by {args.turn_deg:g}-degree "
+                f"turns of {args.turn_s:g} s")  # fmt: skip
+
+    catalogue = catalogue_terms()
+    base = kvh_like_truth(np.random.default_rng(args.seed))
+    truth = load_coefficients(args.truth, catalogue) if args.truth else base.copy()
+    for name, v in base.values.items():  # a partial truth file keeps the defaults elsewhere
+        truth.values.setdefault(name, v)
+    noise = NoiseSpec(args.arw, args.vrw)
+    n_total = round(spec.duration_s * args.rate)
+    chunks = vessel_chunks(truth, spec, args.latitude, args.height, args.rate, noise,
+                           args.temp_start, args.seed, chunk_s=VESSEL_CHUNK_S)  # fmt: skip
+    fmt = args.capture_format
+    config = None
+    if args.capture is not None:
+        from drivers import DecoderConfig
+
+        config = DecoderConfig(rate_hz=args.rate)
+    with contextlib.ExitStack() as stack:
+        csv = stack.enter_context(atomic_stream(recording)) if recording else None
+        cap = stack.enter_context(atomic_stream(args.capture)) if args.capture else None
+        bar = progress_bar(n_total, f"recal simulate {mode}", unit="sample")
+        stack.callback(bar.close)
+        if csv is not None:
+            csv.write((",".join(RECORDING_COLUMNS) + "\n").encode())
+        done = 0
+        for c in chunks:
+            if csv is not None:
+                table = np.column_stack([c.time_s, c.gyro_out, c.accel_out, c.temperature_c])
+                np.savetxt(csv, table, fmt="%.10g", delimiter=",")
+            if cap is not None:
+                cap.write(encode_kvh(c.gyro_out, c.accel_out, c.temperature_c, fmt, config,
+                                     first_frame=done))  # fmt: skip
+            done += len(c.time_s)
+            bar.update(len(c.time_s))
+    if args.track:
+        atomic_write(args.track, _schedule_csv(spec))
+    if args.truth_out:
+        atomic_write(args.truth_out, json.dumps(truth.to_json_dict(catalogue), indent=2) + "\n")
+    where = " and ".join(p for p in (recording, args.capture) if p)
+    # a CSV log carries no units: the hull detector converts it with the coefficients
+    prior = args.truth_out or "COEFFS.json"
+    fmt_flag = f"csv --prior {prior}" if recording else f"{fmt} --rate {args.rate:g}"
+    first = recording or args.capture
+    print(
+        f"recal simulate: wrote {what} ({spec.duration_s / 3600:.2f} h at {args.rate:g} Hz, "
+        f"{n_total:,} samples; sea: roll {sea.roll_deg:g} deg, pitch {sea.pitch_deg:g} deg, yaw "
+        f"swing {sea.yaw_swing_deg:g} deg, heave {sea.heave_m:g} m) to {where}"
+        + (f"; schedule to {args.track}" if args.track else "")
+        + f"; read it with `recal positions {first} --format {fmt_flag} --motion hull "
+        f"--latitude {args.latitude:g} -o POSITIONS.csv`",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def _triple(text: str, flag: str) -> tuple[float, float, float]:
+    """'x,y,z' as three finite numbers; an input error naming ``flag`` otherwise."""
+    import math
+
+    from recal.errors import RecalInputError
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise RecalInputError(f"{flag} {text!r}: expected three numbers X,Y,Z")
+    return values  # type: ignore[return-value]
+
+
+def _schedule_csv(spec) -> str:
+    """One row per segment of a vessel schedule: what it is, when, and the heading it turns to."""
+    rows = ["segment,kind,start_s,end_s,heading_start_deg,heading_end_deg,mount_roll_deg,"
+            "mount_pitch_deg,mount_yaw_deg"]  # fmt: skip
+    t, heading, mount = 0.0, spec.heading0_deg, spec.mount_rpy_deg
+    for k, seg in enumerate(spec.segments):
+        end = heading + (seg.heading_change_deg if seg.kind == "turn" else 0.0)
+        if seg.kind == "index" and seg.mount_rpy_deg is not None:
+            mount = seg.mount_rpy_deg
+        rows.append(f"{k},{seg.kind},{t:.6g},{t + seg.duration_s:.6g},{heading:.6g},{end:.6g},"
+                    + ",".join(f"{m:g}" for m in mount))  # fmt: skip
+        t += seg.duration_s
+        heading = end
+    return "\n".join(rows) + "\n"
 
 
 RECORDING_COLUMNS = (
