@@ -231,6 +231,35 @@ def kvh_like_truth(rng: np.random.Generator | int | None = None) -> CoefficientS
     return CoefficientSet(values, metadata={"source": "kvh_like_truth (simulated)"})
 
 
+#: 1-sigma of a good prior for a KVH-like unit (issue 25's acceptance: within 100 ppm,
+#: 0.01 deg/h and 20 ug), per coefficient name's last part; the bias by sensor.
+PRIOR_SIGMA = {"scale": 1e-4, "gyro.bias": 0.01, "accel.bias": 20e-6, "misalignment": 1e-4,
+               "quadratic": 1e-5}  # fmt: skip
+
+
+def prior_near(
+    truth: CoefficientSet,
+    rng: np.random.Generator | int | None = None,
+    sigma: dict[str, float] | None = None,
+) -> CoefficientSet:
+    """A previous calibration of the unit ``truth`` describes: every coefficient drawn around the
+    truth with the 1-sigma it carries (``sigma`` by name as :data:`PRIOR_SIGMA`), so a fit that
+    holds some at this prior is still right within the uncertainty it reports."""
+    rng = np.random.default_rng(rng)
+    sigma = {**PRIOR_SIGMA, **(sigma or {})}
+    prior = truth.copy()
+    prior.uncertainty = {}
+    for name, value in truth.values.items():
+        sd = sigma.get(name, sigma.get(name.split(".", 1)[1]))
+        if sd is None:
+            continue
+        v = np.asarray(value, dtype=float)
+        prior.values[name] = v + sd * rng.standard_normal(v.shape)
+        prior.uncertainty[name] = np.full(v.shape, float(sd))
+    prior.metadata = {"source": "prior_near (simulated: the truth within its 1-sigma)"}
+    return prior
+
+
 def _rows(*cols: np.ndarray) -> np.ndarray:
     """(k, len(cols)) int64 rows sorted by the first column."""
     out = np.column_stack([np.asarray(c, dtype=np.int64) for c in cols]).reshape(-1, len(cols))

@@ -5,6 +5,12 @@ writes the bytes the device would send, replays them through a real pyserial ``r
 into the service pipeline -- static detector, positions in SQLite, scheduled recalibrations in a
 worker process, the gate, versioned storage, the published JSON file -- and compares the
 accepted coefficients with the truth. ``--serve`` then keeps the HTTP API up on the demo data.
+
+``--vessel`` runs the same product on what the service is built for: a FOG bolted to a moored
+hull (:mod:`recal.sim.vessel`): a few berth holds in a small sea (roll, pitch, yaw swing, heave)
+joined by steady heading turns, read with ``[detector] motion = "hull"``, started from a prior
+(the truth within its 1-sigma, as a previous calibration) and published under ``[gate]
+publish_observable_part``: what the turns show is estimated, the rest held at the prior.
 """
 
 from __future__ import annotations
@@ -14,6 +20,21 @@ import json
 import sys
 import time
 from pathlib import Path
+
+#: The --vessel session: 10-minute berth holds (a window's mean rate carries the net attitude
+#: change over its length: shorter holds blur the gyro), a small sea, turns that cover most of
+#: the compass (so the horizontal gyro biases are seen), 20 Hz (the replay takes seconds).
+VESSEL_HOLDS = 8
+VESSEL_HOLD_S = 600.0
+VESSEL_TURN_DEG = 45.0
+VESSEL_TURN_S = 60.0
+VESSEL_ROLL_DEG = 0.1
+VESSEL_YAW_SWING_DEG = 0.02
+VESSEL_HEAVE_M = 0.05
+VESSEL_RATE_HZ = 20.0
+#: The prior's 1-sigma: an older calibration, looser than what the berth shows, so the demo
+#: shows what is estimated and what stays held (service.capture_sim.prior_near).
+VESSEL_PRIOR_SIGMA = {"scale": 3e-4, "gyro.bias": 0.1, "accel.bias": 100e-6, "misalignment": 3e-4}
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -28,6 +49,11 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="random seed of the simulated unit, noise and capture (default 0)")  # fmt: skip
     p.add_argument("--latitude", type=float, default=57.7, metavar="DEG",
                    help="latitude of the simulated vessel, in degrees (default 57.7)")  # fmt: skip
+    p.add_argument("--vessel", action="store_true",
+                   help="a hull-fixed FOG at berth instead of the 24-position session: "
+                   f"{VESSEL_HOLDS} holds of {VESSEL_HOLD_S:g} s in a {VESSEL_ROLL_DEG:g}-degree "
+                   f"sea joined by {VESSEL_TURN_DEG:g}-degree turns, the hull detector "
+                   "([detector] motion = \"hull\"), a prior and [gate] publish_observable_part")  # fmt: skip
     p.add_argument("--serve", action="store_true", help="then serve the HTTP API until Ctrl-C")
     p.add_argument("--port", type=int, default=8750,
                    help="TCP port of the API on 127.0.0.1 with --serve (default 8750)")  # fmt: skip
@@ -41,13 +67,11 @@ def _say(msg: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from recal.errors import RecalInputError
-    from recal.sim.session import simulate_session
-    from recal.sim.simulate import TemperatureSpec
-    from service.capture_sim import kvh_like_truth, session_to_kvh
     from service.cli.common import atomic_write
     from service.config import (
         DetectorSettings,
         DeviceSettings,
+        GateSettings,
         SchedulerSettings,
         Settings,
         SiteSettings,
@@ -67,25 +91,32 @@ def run(args: argparse.Namespace) -> int:
     for stale in (db, folder / "recal.db-wal", folder / "recal.db-shm"):
         stale.unlink(missing_ok=True)  # each demo starts from an empty database
 
-    rate = 200.0
-    truth = kvh_like_truth(args.seed)
-    session = simulate_session(truth, "24", latitude_deg=args.latitude, seed=args.seed,
-                               rate_hz=rate, window_s=30.0, slew_s=5.0, first_hold_s=45.0,
-                               temperature=TemperatureSpec(18.0, 3.0))  # fmt: skip
-    data, _ = session_to_kvh(session, rng=args.seed)
     capture = folder / "session.bin"
-    capture.write_bytes(data)
+    if args.vessel:
+        data, rate, truth, prior, turns = _simulate_vessel(args, capture)
+        prior_path = folder / "prior.json"
+        atomic_write(prior_path, json.dumps(prior.to_json_dict(), indent=2) + "\n")
+        detector = DetectorSettings(motion="hull")
+        # a hull-fixed unit: LM (seconds), a job every two new windows, the observable part
+        scheduler = SchedulerSettings(min_positions=4, min_new_positions=2, method="lm")
+        gate = GateSettings(publish_observable_part=True)
+    else:
+        data, rate, truth = _simulate_lab(args, capture)
+        prior_path, turns = None, None
+        detector = DetectorSettings(init_still_s=30.0, min_duration_s=5.0, edge_trim_s=1.0)
+        scheduler = SchedulerSettings(min_positions=14, min_new_positions=5, sensor="both")
+        gate = GateSettings()
     atomic_write(folder / "truth.json", json.dumps(truth.to_json_dict(), indent=2) + "\n")
-    _say(f"recal demo: simulated {len(session.time_s):,} KVH Format-A frames "
-         f"({session.time_s[-1]:.0f} s at {rate:g} Hz, 24 positions) -> {capture}")  # fmt: skip
 
     settings = Settings(
         database_url=f"sqlite:///{db}",
         publish_path=str(folder / "coefficients.json"),
+        prior_path=None if prior_path is None else str(prior_path),
         device=DeviceSettings(url=f"replay://{capture}?speed=max&rate={rate:g}", rate_hz=rate),
         site=SiteSettings(latitude_deg=args.latitude),
-        detector=DetectorSettings(init_still_s=30.0, min_duration_s=5.0, edge_trim_s=1.0),
-        scheduler=SchedulerSettings(min_positions=14, min_new_positions=5, sensor="both"),
+        detector=detector,
+        scheduler=scheduler,
+        gate=gate,
         api={"port": args.port, "token": _api_token()},
     )
     service = build_service(settings)
@@ -100,20 +131,74 @@ def run(args: argparse.Namespace) -> int:
     service.end_of_input()
     service.scheduler.wait(timeout=300)
     h = service.reader.health().counters
+    kind = "quasi-static" if args.vessel else "static"
     _say(f"recal demo: replayed through replay:// in {time.monotonic() - t0:.1f} s: "
-         f"{h.frames:,} frames, {service.ingest.windows} static windows stored")  # fmt: skip
+         f"{h.frames:,} frames, {service.ingest.windows} {kind} windows stored")  # fmt: skip
     latest = service.store.history(limit=1)
     if not latest or len(latest[0].positions_used) < service.store.count_positions():
         job = service.scheduler.trigger("demo")  # the scheduled jobs did not see every window
         outcome = service.scheduler.wait(timeout=300)
         verdict = "accepted" if outcome and outcome.accepted else f"not accepted: {outcome}"
         _say(f"recal demo: final recalibration (job {job}) on all windows: {verdict}")
-    _print_summary(service, truth)
+    if args.vessel:
+        _print_vessel_summary(service, truth, turns)
+    else:
+        _print_summary(service, truth)
     service.reader = None
     if args.serve:
         return _serve(service, settings)
     service.close()
     return 0
+
+
+def _simulate_lab(args: argparse.Namespace, capture: Path) -> tuple[bytes, float, object]:
+    """The 24-position session as a KVH capture: (bytes, rate, truth)."""
+    from recal.sim.session import simulate_session
+    from recal.sim.simulate import TemperatureSpec
+    from service.capture_sim import kvh_like_truth, session_to_kvh
+    from service.cli.common import atomic_write
+
+    rate = 200.0
+    truth = kvh_like_truth(args.seed)
+    session = simulate_session(truth, "24", latitude_deg=args.latitude, seed=args.seed,
+                               rate_hz=rate, window_s=30.0, slew_s=5.0, first_hold_s=45.0,
+                               temperature=TemperatureSpec(18.0, 3.0))  # fmt: skip
+    data, _ = session_to_kvh(session, rng=args.seed)
+    atomic_write(capture, data)
+    _say(f"recal demo: simulated {len(session.time_s):,} KVH Format-A frames "
+         f"({session.time_s[-1]:.0f} s at {rate:g} Hz, 24 positions) -> {capture}")  # fmt: skip
+    return data, rate, truth
+
+
+def _simulate_vessel(
+    args: argparse.Namespace, capture: Path
+) -> tuple[bytes, float, object, object, list[tuple[float, float]]]:
+    """The berth session as a KVH capture: (bytes, rate, truth, prior, turn spans in s)."""
+    from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+    from service.capture_sim import kvh_like_truth, prior_near, session_to_kvh
+    from service.cli.common import atomic_write
+
+    rate = VESSEL_RATE_HZ
+    truth = kvh_like_truth(args.seed)
+    prior = prior_near(truth, (args.seed, 1), VESSEL_PRIOR_SIGMA)
+    sea = SeaState.berth(
+        VESSEL_ROLL_DEG, yaw_swing_deg=VESSEL_YAW_SWING_DEG, heave_m=VESSEL_HEAVE_M
+    )
+    spec = VesselSpec.berth(VESSEL_HOLDS, VESSEL_HOLD_S, VESSEL_TURN_S, VESSEL_TURN_DEG, sea)
+    rec = simulate_vessel(truth, spec, args.latitude, rate_hz=rate, seed=args.seed)
+    data, _ = session_to_kvh(rec.session, rng=args.seed)
+    atomic_write(capture, data)
+    turns, t = [], 0.0
+    for seg in spec.segments:
+        if seg.kind == "turn":
+            turns.append((t, t + seg.duration_s))
+        t += seg.duration_s
+    _say(f"recal demo: simulated a hull-fixed FOG at berth: {VESSEL_HOLDS} holds of "
+         f"{VESSEL_HOLD_S:g} s joined by {VESSEL_TURN_DEG:g}-degree turns of {VESSEL_TURN_S:g} s, "
+         f"roll {sea.roll_deg:g} deg, pitch {sea.pitch_deg:g} deg, yaw swing "
+         f"{sea.yaw_swing_deg:g} deg, heave {sea.heave_m:g} m; {len(rec.session):,} KVH "
+         f"Format-A frames ({spec.duration_s:.0f} s at {rate:g} Hz) -> {capture}")  # fmt: skip
+    return data, rate, truth, prior, turns
 
 
 def _print_summary(service, truth) -> None:
@@ -146,6 +231,51 @@ def _print_summary(service, truth) -> None:
             true = truth.values[f"{sensor}.{key}"]
             z = (est - true) / sd
             print(f"  {sensor}.{key:6s} " + "  ".join(f"{v:+5.2f}" for v in z))
+    print(f"\npublished: {service.publisher.path}\ndatabase:  {service.settings.database_url}")
+
+
+def _print_vessel_summary(service, truth, turns: list[tuple[float, float]]) -> None:
+    """Windows against the turns, the versions, and the accepted one against the truth: each
+    coefficient's error over its reported 1-sigma, marked h where it was held at the prior."""
+    import numpy as np
+
+    store = service.store
+    positions, _ = store.positions()
+    start, end = positions.columns["start_s"], positions.columns["end_s"]
+    overlap = sum(any(s < b and e > a for a, b in turns) for s, e in zip(start, end, strict=True))
+    health = service.ingest.detector_health()
+    rejected = ", ".join(f"{k} {v}" for k, v in health.get("rejected", {}).items()) or "none"
+    print(f"windows: {len(start)} stored ({np.min(end - start):.0f}-{np.max(end - start):.0f} s "
+          f"long), {overlap} overlapping a turn; rejected: {rejected}")  # fmt: skip
+    history = list(reversed(store.history(limit=50)))
+    print(f"\n{'version':>7s} {'trigger':>11s} {'positions':>9s} {'accepted':>8s} "
+          f"{'chi2_red':>8s}  heading error [deg RMS] before -> after")  # fmt: skip
+    for r in history:
+        nav = r.document.get("navigation") or {}
+        before = (nav.get("before") or {}).get("heading_error_deg_rms")
+        after = (nav.get("after") or {}).get("heading_error_deg_rms")
+        fig = "-" if after is None else f"{before or float('nan'):.4f} -> {after:.4f}"
+        print(f"{r.version:7d} {r.trigger:>11s} {len(r.positions_used):9d} "
+              f"{'yes' if r.accepted else 'no':>8s} {r.document['chi2_red']:8.2f}  {fig}")  # fmt: skip
+    current = store.current()
+    if current is None:
+        print("no accepted calibration")
+        return
+    doc = current.document
+    print(f"\naccepted version {current.version} against the simulated truth "
+          "(error / reported 1-sigma; h: held at the prior):")  # fmt: skip
+    for sensor in ("gyro", "accel"):
+        for key in ("scale", "bias"):
+            est = np.array(doc["coefficients"][sensor][key])
+            sd = np.array(doc["uncertainty"][sensor][key], dtype=float)
+            status = doc["status"][sensor][key]
+            z = (est - truth.values[f"{sensor}.{key}"]) / sd
+            print(f"  {sensor}.{key:6s} " + "  ".join(
+                f"{v:+5.2f}{'h' if st == 'held' else ' '}" for v, st in zip(z, status, strict=True)
+            ))  # fmt: skip
+    nav = doc.get("navigation") or {}
+    if nav.get("summary"):
+        print(f"\nnavigation: {nav['summary']}")
     print(f"\npublished: {service.publisher.path}\ndatabase:  {service.settings.database_url}")
 
 
