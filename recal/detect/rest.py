@@ -22,19 +22,25 @@ is not gravity: heave, surge, a crane, a vehicle). Pure numpy; used by the stati
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from recal.detect.windows import Window
 from recal.model.coefficients import CoefficientSet
 from recal.model.reference import OMEGA_IE_DEG_H, normal_gravity_g
 
 #: Rejection reasons a rest check can give, in the order the reports list them.
 REST_REASONS = ("turning", "swinging", "rate_low", "accelerating")
 
-#: Class defaults, 1-sigma (recal.solve.consider's "navigation" class: a FOG whose window means
-#: show Earth's rate): relative scale, gyro bias deg/h, misalignment rad, accel bias g.
-_NAV_SCALE, _NAV_GYRO_BIAS_DPH, _NAV_MISALIGNMENT, _NAV_ACCEL_BIAS_G = 1e-3, 0.05, 1e-3, 1e-3
+#: A navigation-class unit in service without a prior, 1-sigma: relative scale, gyro bias deg/h,
+#: misalignment rad, accel bias g. recal.solve.consider's "navigation" class, except the gyro
+#: bias: its 0.05 deg/h is how far a held bias moves between two calibrations, while a unit of
+#: unknown history (a KVH 1750's turn-on bias, a simulated kvh_like_truth: up to 0.5 deg/h) can
+#: sit further from zero. The check's bound, five times these, is then 4.3 deg/h on the rate norm:
+#: a turn is at least 360 deg/h.
+_NAV_SCALE, _NAV_GYRO_BIAS_DPH, _NAV_MISALIGNMENT, _NAV_ACCEL_BIAS_G = 1e-3, 0.5, 1e-3, 1e-3
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,8 @@ class RestReference:
     accel_bias_sigma_g: float = _NAV_ACCEL_BIAS_G
     misalignment_sigma: float = _NAV_MISALIGNMENT
     source: str = "navigation-class defaults"
+    #: how far gravity itself may be off gravity_g (g): the latitude is not known
+    gravity_unknown_g: float = 0.0
     k_coeff: float = 5.0
     k_sigma: float = 5.0
 
@@ -126,6 +134,14 @@ class RestReference:
             else "the prior",
         )
 
+    def at_unknown_latitude(self) -> RestReference:
+        """The same with gravity anywhere between the equator's and the pole's (at sea level):
+        the reference is their mean and the tolerance grows by half their difference."""
+        g_eq, g_pole = normal_gravity_g(0.0, 0.0), normal_gravity_g(90.0, 0.0)
+        return replace(
+            self, gravity_g=0.5 * (g_eq + g_pole), gravity_unknown_g=0.5 * (g_pole - g_eq)
+        )
+
     # ---- output units -> physics ----------------------------------------------------------
     def rate_dph(self, gyro_out: np.ndarray) -> np.ndarray:
         """Output (..., 3) -> angular rate, deg/h (scale and bias only)."""
@@ -146,7 +162,7 @@ class RestReference:
     def force_tolerance_g(self) -> float:
         """The same for the specific force's norm against gravity."""
         g = self.gravity_g
-        return self.k_coeff * math.sqrt(
+        return self.gravity_unknown_g + self.k_coeff * math.sqrt(
             (self.scale_sigma * g) ** 2 + 3.0 * self.accel_bias_sigma_g**2
             + (self.misalignment_sigma * g) ** 2
         )  # fmt: skip
@@ -210,3 +226,37 @@ def _norm_sem(
     u = v / np.maximum(vn[:, None], 1e-300)
     # the norm's linear error, plus the chi floor where the vector is near zero
     return np.sqrt(np.sum((u * s) ** 2, axis=1) + np.where(vn > 0, 0.0, np.sum(s**2, axis=1)))
+
+
+def rest_filter(windows: Sequence[Window], ref: RestReference) -> tuple[list[Window], list[str]]:
+    """The windows at rest in physics, and one reason per window ("" where kept).
+
+    Motion rejects (``turning``, ``swinging``, ``accelerating``); ``rate_low`` does not (no motion
+    lowers the rate: the unit's settings are checked by recal.detect.plausibility). Each window
+    is judged with its own standard errors (``gyro_sem``/``accel_sem``); an
+    accelerometer-only window (``gyro_still`` False: the gyro trembled) is judged on gravity
+    alone. Callers count the reasons in their report (``DetectionReport.add_rest_rejections``).
+    """
+    if not windows:
+        return [], []
+    gyro = np.array([w.gyro for w in windows], dtype=float)
+    accel = np.array([w.accel for w in windows], dtype=float)
+    has_gyro = np.isfinite(gyro).all(axis=1) & np.array([w.gyro_still for w in windows])
+    has_accel = np.isfinite(accel).all(axis=1)
+    gs = np.array([w.gyro_sem for w in windows], dtype=float)
+    fs = np.array([w.accel_sem for w in windows], dtype=float)
+    reasons = np.full(len(windows), "", dtype=object)
+    both = has_gyro & has_accel
+    if both.any():
+        reasons[both] = ref.judge(gyro[both], accel[both], gs[both], fs[both])
+    only_g = has_gyro & ~has_accel
+    if only_g.any():
+        reasons[only_g] = ref.judge(gyro[only_g], None, gs[only_g], None)
+    only_a = has_accel & ~has_gyro
+    if only_a.any():
+        reasons[only_a] = ref.judge(None, accel[only_a], None, fs[only_a])
+    # a rate below Earth's is no motion: a wrong setting (recal.detect.plausibility names it) or a
+    # unit out of its class; the window is kept, and only motion rejects
+    reasons[reasons == "rate_low"] = ""
+    kept = [w for w, r in zip(windows, reasons, strict=True) if not r]
+    return kept, [str(r) for r in reasons]

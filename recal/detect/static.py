@@ -41,6 +41,7 @@ window means agree to rounding (about 1e-15 relative).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -70,6 +71,11 @@ REASON_TEXT = {
     "sequence_gap": "cut by a sequence gap",
     "rotating": "rotating (mean gyro off the reference)",
     "gyro_not_still": "gyro not still (used for the accelerometer only)",
+    # the rest check in physics (recal.detect.rest)
+    "turning": "turning (mean rate above Earth's rate, along gravity)",
+    "swinging": "swinging (mean rate above Earth's rate, about a horizontal axis)",
+    "rate_low": "mean rate below Earth's rate (a unit or rate setting, or not at rest)",
+    "accelerating": "accelerating (mean specific force is not gravity)",
 }
 #: Rejected stretches listed in :attr:`DetectionReport.rejected_stretches` at most (the counts in
 #: ``rejected`` stay complete): a plot needs them, and a noisy recording can have very many.
@@ -248,6 +254,17 @@ class DetectionReport:
             return None
         keep = self.longest_short_frames - 2 * self.edge_trim_frames
         return keep / self.sample_rate_hz if keep >= 2 else None
+
+    def add_rest_rejections(self, windows: Sequence[Window], reasons: Sequence[str]) -> None:
+        """Count the windows the rest check (:func:`recal.detect.rest.rest_filter`) rejected."""
+        rejected = [(w, r) for w, r in zip(windows, reasons, strict=True) if r]
+        for _w, r in rejected:
+            self.rejected[r] = self.rejected.get(r, 0) + 1
+        if rejected:
+            self._add_stretches([w.start_s for w, _ in rejected], [w.end_s for w, _ in rejected],
+                                np.array([r for _, r in rejected], dtype=object))  # fmt: skip
+            self.windows_kept -= len(rejected)
+            self.accel_only_windows -= sum(1 for w, _ in rejected if not w.gyro_still)
 
     def rejection_lines(self, limit: int = MAX_LISTED_REJECTIONS) -> list[str]:
         """One line per rejected stretch, in time order, saying why (at most ``limit``; then

@@ -182,6 +182,30 @@ def add_detector_options(p: argparse.ArgumentParser) -> None:
         "it (default: the detector's, a few frames)",
     )
     d.add_argument(
+        "--motion",
+        choices=("still", "hull"),
+        default="still",
+        help="still: the unit stands still between moves (a lab, a fixture; moving variance, "
+        "default); hull: an IMU bolted to a hull that rolls, pitches, heaves and swings at its "
+        "berth and turns now and then: quasi-static windows of minutes, their means corrected "
+        "for the waves and their sigmas carrying the rest (docs/static.md, 'A hull that is "
+        "never still'); needs outputs in deg/h and g, or --prior",
+    )
+    d.add_argument(
+        "--prior",
+        metavar="COEFFS.json",
+        help="the unit's coefficients (a previous calibration): turns its outputs into deg/h "
+        "and g and bounds how far they may be off for the rest check (default: outputs in "
+        "physical units and navigation-class bounds; none for raw counts)",
+    )
+    d.add_argument(
+        "--latitude",
+        type=float,
+        metavar="DEG",
+        help="latitude of the recording, for the gravity the rest check expects (default: "
+        "unknown, so gravity anywhere between the equator's and the pole's passes)",
+    )
+    d.add_argument(
         "--gyro-rate-max",
         type=float,
         metavar="RATE",
@@ -200,15 +224,28 @@ def run(args: argparse.Namespace) -> int:
         if not (path.parent if str(path.parent) else Path(".")).is_dir():
             raise RecalInputError(f"output folder {path.parent} does not exist")
     recording = open_recording(args)
-    floor = None
-    if not _has_thresholds(args):
-        floor = _learn_noise_floor(recording, args)
-    envelope = None
-    if report_path:
-        from recal.report.positions import RecordingEnvelope
+    rest = _rest_reference(args)
+    motion = getattr(args, "motion", "still")
+    if motion == "hull":
+        if report_path:
+            raise RecalInputError("--report is not available with --motion hull yet")
+        windows, report = _detect_hull(recording, rest, args)
+    else:
+        floor = None
+        if not _has_thresholds(args):
+            floor = _learn_noise_floor(recording, args)
+        envelope = None
+        if report_path:
+            from recal.report.positions import RecordingEnvelope
 
-        envelope = RecordingEnvelope()  # bounded: a few thousand buckets, however long
-    windows, report = _detect(recording, _config(args, recording, floor), envelope)
+            envelope = RecordingEnvelope()  # bounded: a few thousand buckets, however long
+        windows, report = _detect(recording, _config(args, recording, floor), envelope)
+        if rest is not None:  # still in physics, not only in variance
+            from recal.detect.rest import rest_filter
+
+            kept, reasons = rest_filter(windows, rest)
+            report.add_rest_rejections(windows, reasons)
+            windows = kept
     if report_path:  # before the no-window error: the report shows why there is none
         _write_report(Path(report_path), envelope, report, windows, recording, floor, args)
     if not windows:
@@ -222,6 +259,14 @@ def run(args: argparse.Namespace) -> int:
     # Printed only on success: a failed run prints its one-line error and nothing else.
     for line in recording.notes() + report.summary_lines():
         print(f"recal positions: {line}", file=sys.stderr)
+    if motion == "still":
+        if rest is None:
+            print(
+                "recal positions: no rest check in physics: the outputs are not in deg/h and g "
+                "(give --prior to convert them)",
+                file=sys.stderr,
+            )
+        _hint_hull(windows)
     positions = _write(out, windows, recording.triads)
     if _units(args.format) == {"gyro": "deg/h", "accel": "g"}:  # Earth rate, gravity check them
         from recal.detect.plausibility import check_units
@@ -238,7 +283,18 @@ def run(args: argparse.Namespace) -> int:
     if report_path:
         print(f"recal positions: wrote the report to {report_path}", file=sys.stderr)
     side = slews_path(out)
-    if getattr(args, "slews", True) and len(windows) > 1 and recording.triads == ("gyro", "accel"):
+    if motion == "hull" and getattr(args, "slews", True):
+        print(
+            "recal positions: no slews with --motion hull: a slew needs still ends, and a "
+            "rocking hull's window ends are off its mean attitude by the wave's angle",
+            file=sys.stderr,
+        )
+    if (
+        motion == "still"
+        and getattr(args, "slews", True)
+        and len(windows) > 1
+        and recording.triads == ("gyro", "accel")
+    ):
         _write_slews(side, recording, windows, report.sample_rate_hz)
     elif side.exists():
         side.unlink()  # a stale side file would not match the new windows
@@ -316,6 +372,84 @@ def _config(args: argparse.Namespace, recording, floor):
         "noise_floor": floor,
     }
     return DetectorConfig(**{k: v for k, v in given.items() if v is not None})
+
+
+def _rest_reference(args: argparse.Namespace):
+    """The rest check's reference (recal.detect.rest): from --prior, or nominal for a format whose
+    outputs are deg/h and g; None when the outputs cannot be turned into physics."""
+    from recal.detect.rest import RestReference
+
+    given = getattr(args, "latitude", None)
+    latitude = 45.0 if given is None else float(given)
+    if not -90.0 <= latitude <= 90.0:
+        from recal.errors import RecalInputError
+
+        raise RecalInputError(f"--latitude {latitude:g}: must be within -90 to 90 degrees")
+    prior = getattr(args, "prior", None)
+    ref = None
+    if prior:
+        from service.cli.common import load_coefficients
+
+        ref = RestReference.from_coefficients(load_coefficients(prior), latitude)
+    elif _units(args.format) == {"gyro": "deg/h", "accel": "g"}:
+        ref = RestReference.nominal(latitude)
+    # without a latitude, gravity anywhere from the equator's to the pole's is at rest
+    return ref.at_unknown_latitude() if ref is not None and given is None else ref
+
+
+def _detect_hull(recording, rest, args: argparse.Namespace):
+    """One pass through the hull detector (recal.detect.hull): quasi-static windows."""
+    from recal.detect.hull import HullDetector
+    from recal.errors import RecalInputError
+
+    if rest is None:
+        raise RecalInputError(
+            "--motion hull judges windows by Earth's rate and gravity: the outputs must be in "
+            "deg/h and g (a KVH), or give --prior to convert them"
+        )
+    if recording.triads != ("gyro", "accel"):
+        raise RecalInputError("--motion hull needs both triads: the gyro sees the hull's motion")
+    detector = None
+    windows = []
+    with _ByteProgress(recording.total_bytes, "positions") as bar:
+        for frames in recording.frames(bar.update):
+            if detector is None:
+                rate = recording.sample_rate_hz or _rate_of(frames["time_s"])
+                detector = HullDetector(rest, rate_hz=rate)
+            windows += detector.feed(
+                frames["time_s"], frames["gyro"], frames["accel"],
+                frames.get("temperature_c"), frames.get("valid"),
+            )  # fmt: skip
+    if detector is None:
+        raise RecalInputError(f"no frames in {recording.source}")
+    windows += detector.flush()
+    return [hw.window for hw in windows], detector.report
+
+
+def _rate_of(time_s) -> float:
+    import numpy as np
+
+    from recal.errors import RecalInputError
+
+    steps = np.diff(np.asarray(time_s, float))
+    steps = steps[steps > 0]
+    if not steps.size:
+        raise RecalInputError("--motion hull needs the sample rate: give --rate")
+    return 1.0 / float(np.median(steps))
+
+
+def _hint_hull(windows) -> None:
+    """A recording of a rocking hull gives the lulls between waves: say what to do instead."""
+    if len(windows) < 20:
+        return
+    short = sum(1 for w in windows if w.duration_s < 10.0)
+    if short >= 0.5 * len(windows):
+        print(
+            f"recal positions: note: {short} of {len(windows)} windows last less than 10 s: "
+            "if the unit is on a hull that rocks, these are the lulls between waves, whose means "
+            "carry the wave's phase; use --motion hull",
+            file=sys.stderr,
+        )
 
 
 def _learn_noise_floor(recording, args: argparse.Namespace):
