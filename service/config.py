@@ -198,6 +198,60 @@ class DetectorSettings(Section):
     max_gap_frames: int = Field(
         5, ge=0, description="longest run of lost or invalid frames a window may contain"
     )
+    # the hull detector (recal.detect.hull); the defaults are recal.detect.hull.HullConfig's
+    motion: Literal["still", "hull"] = Field(
+        "still",
+        description="still: windows where the moving variance is low (a unit at rest); hull: "
+        "quasi-static windows of a hull that rolls, pitches and swings at berth "
+        "(recal.detect.hull: no noise floor is learned; the hull_* keys tune it)",
+    )
+    hull_min_window_s: float = Field(
+        120.0, gt=0, description="hull: shortest quasi-static window (s; many wave periods)"
+    )
+    hull_max_window_s: float = Field(
+        1800.0, gt=0, description="hull: a longer quiet stretch is cut into windows this long (s)"
+    )
+    hull_turn_window_s: float = Field(
+        60.0,
+        ge=40,
+        description="hull: span the rate is averaged over to find heading turns (s; at least "
+        "two of the longest wave periods, 40 s)",
+    )
+    hull_max_swing_deg: float = Field(
+        1.0, ge=0, description="hull: largest heading swing at berth that is not a turn (deg)"
+    )
+    hull_trim_s: float = Field(
+        2.0, ge=0, description="hull: dropped at both ends of a quiet stretch (s)"
+    )
+    hull_lever_arm_max_m: float = Field(
+        10.0,
+        ge=0,
+        description="hull: largest distance of the IMU from the hull's centre of rotation (m): "
+        "its centripetal acceleration is carried in the accel uncertainty",
+    )
+
+    @model_validator(mode="after")
+    def _hull_windows(self) -> DetectorSettings:
+        if self.hull_min_window_s > self.hull_max_window_s:
+            raise ValueError(
+                f"hull_min_window_s {self.hull_min_window_s:g} exceeds hull_max_window_s "
+                f"{self.hull_max_window_s:g}"
+            )
+        return self
+
+    def hull_config(self) -> Any:
+        """The hull detector's :class:`recal.detect.hull.HullConfig` from the hull_* keys."""
+        from recal.detect.hull import HullConfig
+
+        return HullConfig(
+            turn_window_s=self.hull_turn_window_s,
+            max_swing_deg=self.hull_max_swing_deg,
+            trim_s=self.hull_trim_s,
+            min_window_s=self.hull_min_window_s,
+            max_window_s=self.hull_max_window_s,
+            lever_arm_max_m=self.hull_lever_arm_max_m,
+            max_gap_frames=self.max_gap_frames,
+        )
 
 
 Trigger = Literal["drift", "information", "count"]

@@ -26,9 +26,17 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from recal.errors import RecalInputError
 from service.config import Settings
 from service.events import Events
-from service.pipeline import FloorKeeper, Ingest, IngestThread, detector_config, window_frames
+from service.pipeline import (
+    FloorKeeper,
+    Ingest,
+    IngestThread,
+    detector_config,
+    rest_reference,
+    window_frames,
+)
 from service.scheduler import Scheduler
 
 log = logging.getLogger("recal.daemon")
@@ -259,6 +267,26 @@ def _safe_meta(settings: Settings) -> dict[str, Any]:
     return meta
 
 
+def _starting_prior(store: Any, settings: Settings) -> Any:
+    """The coefficients the service starts from: the accepted version, else ``prior_path``
+    (None without either). The rest check converts the outputs to physics with them."""
+    from service.db import StoreError
+    from service.startup import read_prior
+    from service.triggers import accepted_coefficients
+
+    try:
+        current = store.current()
+    except StoreError:
+        current = None
+    if current is not None:
+        try:
+            return accepted_coefficients(current)[0]
+        except (RecalInputError, KeyError, TypeError, ValueError) as exc:
+            log.warning("the accepted version %s cannot be read for the rest check: %s",
+                        current.version, exc)  # fmt: skip
+    return read_prior(settings.prior_path) if settings.prior_path else None
+
+
 def build_service(settings: Settings, with_reader: bool = True, runner: Any = None) -> Service:
     """Open the store, the publisher, the pipeline and (optionally) the serial reader."""
     from service.db import Store
@@ -274,15 +302,17 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
         events = Events(store)
         session_id = store.add_session(source=settings.device.url, meta=_safe_meta(settings))
         scheduler = Scheduler(store, settings, publisher, events, runner)
+        config = detector_config(settings)
+        d = settings.device
+        device = f"{d.url} {d.format} {d.rate_hz:g} Hz"
+        keeper = FloorKeeper(store, device, events, window_frames(config, d.rate_hz))
+        rest = rest_reference(settings, _starting_prior(store, settings))
+        hull = settings.detector.hull_config() if settings.detector.motion == "hull" else None
+        ingest = Ingest(store, session_id, config, scheduler.notify, events, keeper,
+                        settings.detector.learn_s, spool, rest=rest, hull=hull)  # fmt: skip
     except BaseException:
         store.close()
         raise
-    config = detector_config(settings)
-    d = settings.device
-    device = f"{d.url} {d.format} {d.rate_hz:g} Hz"
-    keeper = FloorKeeper(store, device, events, window_frames(config, d.rate_hz))
-    ingest = Ingest(store, session_id, config, scheduler.notify, events, keeper,
-                    settings.detector.learn_s, spool)  # fmt: skip
     ingest.replay()  # windows an earlier run made durable go in before any new one
     service = Service(settings, store, publisher, scheduler, ingest, session_id, events)
     if with_reader:

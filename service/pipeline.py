@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from recal.detect.floor import NoiseFloor, NoiseFloorEstimator
+from recal.detect.rest import REST_REASONS, RestReference, rest_filter
 from recal.detect.slews import SlewTracker
 from recal.detect.static import DetectorConfig, StaticDetector
 from recal.detect.windows import Window, windows_to_columns
@@ -64,6 +65,32 @@ def detector_config(settings: Settings) -> DetectorConfig:
         threshold_k=d.threshold_k,
         sample_rate_hz=settings.device.rate_hz,
         max_gap_frames=d.max_gap_frames,
+    )
+
+
+def rest_reference(settings: Settings, prior: Any = None) -> RestReference | None:
+    """The rest check's reference (recal.detect.rest) for this unit: from ``prior`` (the accepted
+    version, else ``prior_path``), else nominal for a format whose outputs are deg/h and g
+    (a KVH); None when the outputs cannot be turned into physics (no rest check then).
+
+    The prior gives the conversion (scale factors, biases); the plausible range is never
+    narrower than the navigation class's: an accepted version's own 1-sigma would censor the
+    very windows that show the unit has drifted from it.
+    """
+    from drivers.registry import get_input_format
+
+    lat, height = settings.site.latitude_deg, settings.site.height_m
+    nominal = RestReference.nominal(lat, height)
+    if prior is None:
+        physical = tuple(get_input_format(settings.device.format).units) == ("deg/h", "g")
+        return nominal if physical else None
+    ref = RestReference.from_coefficients(prior, lat, height)
+    return replace(
+        ref,
+        scale_sigma=max(ref.scale_sigma, nominal.scale_sigma),
+        gyro_bias_sigma_dph=max(ref.gyro_bias_sigma_dph, nominal.gyro_bias_sigma_dph),
+        accel_bias_sigma_g=max(ref.accel_bias_sigma_g, nominal.accel_bias_sigma_g),
+        misalignment_sigma=max(ref.misalignment_sigma, nominal.misalignment_sigma),
     )
 
 
@@ -157,6 +184,14 @@ class _Spooled:
 class Ingest:
     """Feeds decoded frames to the static detector and stores each closed window.
 
+    With a ``rest`` reference (:func:`rest_reference`) the static detector's windows pass the
+    rest check in physics too (:func:`recal.detect.rest.rest_filter`: a steady turn has a quiet
+    moving variance but not Earth's rate); those it refuses are counted by reason in
+    ``/health`` (``detector.rejected``). With a ``hull`` configuration the hull detector
+    (:class:`recal.detect.hull.HullDetector`, which needs ``rest``) finds quasi-static windows
+    instead: no noise floor is learned and no slews are kept (a rocking hull's window ends are
+    off its mean attitude by the wave's angle).
+
     The motion between consecutive windows is kept too (:class:`recal.detect.slews.SlewTracker`,
     bounded memory) and stored with them, so the gyro can be calibrated from the slews.
 
@@ -180,6 +215,8 @@ class Ingest:
         keeper: FloorKeeper | None = None,
         learn_s: float = 120.0,
         spool: Spool | None = None,
+        rest: RestReference | None = None,
+        hull: Any = None,
     ) -> None:
         self._store = store
         self._session = session_id
@@ -192,14 +229,31 @@ class Ingest:
         self._learning: list[Any] = []  # frames held while the first noise floor is learned
         self._learned_s = 0.0
         self._detector: StaticDetector | None = None
-        explicit = config.accel_threshold is not None and config.gyro_threshold is not None
-        stored = keeper.load() if keeper is not None and not explicit else None
-        if stored is not None:  # the stored floor wins over learning again (maybe in motion)
-            self._config = replace(config, noise_floor=stored, init_still_s=None)
-        if self._config.has_thresholds:
-            self._start_detector()
+        self._rest = rest
+        self._rest_seen = self._rest_refused = 0  # static windows judged / refused by it
+        self._refused_norms: deque[tuple[float, float]] = deque(maxlen=50)  # deg/h, g
+        self._rest_warned: list[str] = []
+        self._hull: Any = None
+        if hull is not None:  # quasi-static windows of a moving hull: nothing to learn
+            from recal.detect.hull import HullDetector
+
+            if rest is None:
+                raise RecalInputError(
+                    '[detector] motion = "hull" judges windows by Earth\'s rate and gravity: the '
+                    "unit must output deg/h and g (a KVH format), or set prior_path to convert "
+                    "its outputs"
+                )
+            self._hull = HullDetector(rest, hull, rate_hz=config.sample_rate_hz or 1000.0)
+            self._keeper = None
         else:
-            self._estimator = NoiseFloorEstimator(config.window_s, config.sample_rate_hz)
+            explicit = config.accel_threshold is not None and config.gyro_threshold is not None
+            stored = keeper.load() if keeper is not None and not explicit else None
+            if stored is not None:  # the stored floor wins over learning again (maybe in motion)
+                self._config = replace(config, noise_floor=stored, init_still_s=None)
+            if self._config.has_thresholds:
+                self._start_detector()
+            else:
+                self._estimator = NoiseFloorEstimator(config.window_s, config.sample_rate_hz)
         self._pending: list[Any] = []
         self._count = 0
         self._first_pending = 0.0
@@ -258,12 +312,14 @@ class Ingest:
 
     @property
     def report(self) -> Any:
+        if self._hull is not None:
+            return self._hull.report
         return None if self._detector is None else self._detector.report
 
     @property
     def learning(self) -> bool:
         """Frames are being held to learn the first noise floor (no windows yet)."""
-        return self._detector is None
+        return self._detector is None and self._hull is None
 
     def _start_detector(self) -> None:
         self._detector = StaticDetector(self._config)
@@ -304,16 +360,38 @@ class Ingest:
             return time.monotonic() - self._first_pending if self._pending else None
 
     def detector_health(self) -> dict[str, Any]:
+        """The detector as ``/health`` shows it: ``motion``, the rest check's reference
+        (``rest_check``, None without one), windows kept and ``rejected`` by reason (the rest
+        check's reasons included); the hull detector's ``blocks`` by state too."""
+        rest = None if self._rest is None else self._rest.source
+        if self._hull is not None:
+            rep = self._hull.report
+            return {
+                "motion": "hull",
+                "rest_check": rest,
+                "windows_kept": rep.kept,
+                # every reason, counted or not (an operator sees what is looked for)
+                "rejected": {r: 0 for r in ("too_short", *REST_REASONS)} | dict(rep.rejected),
+                "blocks": {
+                    "total": rep.blocks,
+                    "turning": rep.blocks_turning,
+                    "accelerating": rep.blocks_accelerating,
+                    "fault": rep.blocks_fault,
+                },
+                "block_s": self._hull.cfg.block_s,
+            }
         if self._detector is None:
-            return {"learning_noise_floor": True, "learned_s": round(self._learned_s, 1),
-                    "learn_s": self._learn_s}  # fmt: skip
+            return {"motion": "still", "rest_check": rest, "learning_noise_floor": True,
+                    "learned_s": round(self._learned_s, 1), "learn_s": self._learn_s}  # fmt: skip
         rep = self._detector.report
         return {
+            "motion": "still",
+            "rest_check": rest,
             "accel_threshold": rep.accel_threshold,
             "gyro_threshold": rep.gyro_threshold,
             "threshold_source": getattr(rep, "threshold_source", None),
             "windows_kept": rep.windows_kept,
-            "rejected": dict(rep.rejected),
+            "rejected": dict(rep.rejected),  # the rest check's reasons included
         }
 
     @property
@@ -357,6 +435,8 @@ class Ingest:
             return self._drain() if self._spool else []
 
     def _run(self, flush: bool) -> list[int]:
+        if self._hull is not None:
+            return self._run_hull(flush)
         windows = []
         self.last_detector_run = time.monotonic()
         batches, self._pending, self._count = self._pending, [], 0
@@ -382,8 +462,67 @@ class Ingest:
                 floor = NoiseFloor(rep.accel_threshold / k, rep.gyro_threshold / k,
                                    rep.window_samples, rep.threshold_source)  # fmt: skip
                 self._keeper.save(floor, rep.threshold_source or "initial still period")
+        if windows and self._rest is not None:
+            windows = self._rest_check(windows)
         if windows and self._keeper is not None:
             self._keeper.refine(windows)
+        return self._queue(windows)
+
+    def _run_hull(self, flush: bool) -> list[int]:
+        """The hull detector's turn: frames in, the windows it has decided out (no slews)."""
+        self.last_detector_run = time.monotonic()
+        batches, self._pending, self._count = self._pending, [], 0
+        found = []
+        if batches:
+            from drivers import FrameBatch
+
+            b = FrameBatch.concat(batches)
+            found += self._hull.feed(b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid)
+        if flush:
+            found += self._hull.flush()
+        return self._queue([hw.window for hw in found])
+
+    def _rest_check(self, windows: list[Window]) -> list[Window]:
+        """The static detector's windows that are at rest in physics; the others counted by
+        reason. When every window so far failed it, the windows' norms may say a ``[device]``
+        setting is wrong (as the scheduler would say of stored ones): a ``device`` event."""
+        kept, reasons = rest_filter(windows, self._rest)
+        self._detector.report.add_rest_rejections(windows, reasons)
+        refused = [w for w, r in zip(windows, reasons, strict=True) if r]
+        self._rest_seen += len(windows)
+        self._rest_refused += len(refused)
+        if refused:
+            ref = self._rest
+            rate = np.linalg.norm(ref.rate_dph(np.array([w.gyro for w in refused])), axis=1)
+            force = np.linalg.norm(ref.force_g(np.array([w.accel for w in refused])), axis=1)
+            self._refused_norms.extend(zip(rate.tolist(), force.tolist(), strict=True))
+            if self._rest_refused == self._rest_seen >= 4:
+                self._warn_units()
+        return kept
+
+    def _warn_units(self) -> None:
+        """A ``device`` event when the refused windows agree on norms far from Earth's rate or
+        gravity (a wrong rate or unit setting scales them all alike; motion scatters them)."""
+        from recal.detect.plausibility import MAX_FACTOR, UnitCheck
+        from recal.model.reference import OMEGA_IE_DEG_H
+
+        ref = self._rest
+        rate, force = np.array(self._refused_norms).T
+        for norms in (rate, force):
+            if not (np.all(norms > 0) and norms.max() <= MAX_FACTOR * norms.min()):
+                return
+        check = UnitCheck(float(np.median(rate)) / OMEGA_IE_DEG_H,
+                          float(np.median(force)) / ref.gravity_g)  # fmt: skip
+        rate_hz = self._config.sample_rate_hz or 0.0
+        problems = check.problems("[device] rate_hz", rate_hz, "[device] gyro_output / gyro_units")
+        if problems and problems != self._rest_warned:
+            self._events.emit("device", "every window so far fails the rest check: "
+                              + "; ".join(problems), level=logging.WARNING)  # fmt: skip
+        self._rest_warned = problems
+
+    def _queue(self, windows: list[Window]) -> list[int]:
+        """Spool a detector call's windows (with the slews between them) and store what the
+        database takes now."""
         if windows:
             slews = []
             if self._tracker is not None:

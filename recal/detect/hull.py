@@ -374,11 +374,12 @@ def _slope_per_h(t: np.ndarray, y: np.ndarray) -> float:
 class HullDetector:
     """The hull detector fed frame chunks as they arrive (the daemon's form of :func:`detect_hull`).
 
-    It buffers frames until it holds ``max_window_s`` plus two turn windows, or the stream ends;
-    then it runs :func:`detect_hull` on the buffer, emits the windows that end at least a turn
-    window before the buffer's end (the rest may still grow), and drops the frames it has
-    decided. Memory is bounded by that buffer (18 min at the defaults). Window times and indices
-    count from the first frame fed.
+    It buffers frames until it holds ``max_window_s`` plus three turn windows, or the stream ends;
+    then it runs :func:`detect_hull` on the buffer, emits the windows that end at least two turn
+    windows before the buffer's end (the rest may still grow), and drops the frames it has
+    decided, never those of a window still waiting nor the half turn window its first blocks are
+    judged with. Memory is bounded by that buffer (33 min at the defaults). Window times and
+    indices count from the first frame fed.
     """
 
     def __init__(self, ref: RestReference, cfg: HullConfig | None = None, rate_hz: float = 100.0):
@@ -390,7 +391,9 @@ class HullDetector:
         self._buffered = 0
         self._offset = 0  # global index of the buffer's first frame
         self._t0: float | None = None
-        span = self.cfg.max_window_s + 2.0 * self.cfg.turn_window_s + 4.0 * self.cfg.trim_s
+        # a waiting window (at most max_window_s, ending in the last two turn windows) and the
+        # half turn window before it fit, with room to spare: every decision drops frames
+        span = self.cfg.max_window_s + 3.0 * self.cfg.turn_window_s + 4.0 * self.cfg.trim_s
         self._capacity = round(span * self.rate_hz)
 
     def feed(
@@ -432,6 +435,17 @@ class HullDetector:
             cut = emitted[-1].window.end_index + 1
         else:
             cut = max(1, horizon - round(self.cfg.turn_window_s * self.rate_hz))
+            # a window (or a quiet stretch too short so far) reaching past the horizon may
+            # still grow: keep it whole, with the half turn window of blocks before its start
+            # that its first block's average needs (cutting into it lost the window), on the
+            # same block grid
+            waiting = [w.window.start_index for w in wins if w.window.end_index >= horizon]
+            waiting += [int(np.searchsorted(t, a0)) for a0, b0, why in rep.rejected_stretches
+                        if why == "too short" and b0 >= t[horizon - 1]]  # fmt: skip
+            if waiting:
+                B = max(1, round(self.cfg.block_s * self.rate_hz))
+                half = round((0.5 * self.cfg.turn_window_s + self.cfg.trim_s) * self.rate_hz)
+                cut = max(1, min(cut, (min(waiting) - half - B) // B * B))
         # only what lies before the cut counts: the rest is judged again with more data
         for a0, b0, why in rep.rejected_stretches:
             if final or b0 < t[cut - 1]:

@@ -81,11 +81,14 @@ def test_restart_while_moving_reuses_the_stored_floor(tmp_path: Path, session) -
 
 
 def test_the_old_way_learned_motion_as_still(tmp_path: Path, session) -> None:
-    """What a restart at sea did before: thresholds from an 'initial still period' that moves."""
+    """What a restart at sea did before: thresholds from an 'initial still period' that moves
+    let motion pass the variance test; the rest check in physics now refuses it."""
     data, _ = session_to_kvh(session, rng=8)
     cut = int(session.hold_last[2]) + int(1.5 * RATE)
-    spans, _ = _run(_settings(tmp_path, init_still_s=10.0), data[cut * FRAME :])
-    assert not _inside_holds(spans, session, cut)  # motion passed as static
+    spans, health = _run(_settings(tmp_path, init_still_s=10.0), data[cut * FRAME :])
+    refused = sum(health["rejected"].get(r, 0) for r in ("turning", "swinging", "accelerating"))
+    assert refused > 0  # motion passed the variance test ...
+    assert _inside_holds(spans, session, cut)  # ... and none of it was stored
 
 
 def test_refined_only_from_windows_that_passed(tmp_path: Path, session) -> None:

@@ -379,6 +379,26 @@ function renderHealth(h) {
   ];
   $("counters").replaceChildren(...counters.map(([k, v]) => el("div", {}, el("dt", {}, k),
     el("dd", {}, typeof v === "number" ? v.toLocaleString("en-GB") : v ?? "-"))));
+  renderRefusals(s.detector);
+}
+
+// what the detector refused, by reason (/health service.detector: the rest check's turning,
+// swinging, rate_low, accelerating among them) and, for the hull detector, its blocks by state
+function renderRefusals(d) {
+  const box = $("refusals");
+  if (!d || typeof d !== "object") { box.hidden = true; return; }
+  const rows = Object.entries(d.rejected || {}).filter(([, n]) => isNum(n) && n > 0)
+    .map(([why, n]) => [`refused: ${why.replace(/_/g, " ")}`, n]);
+  const b = d.blocks;
+  if (b && isNum(b.total) && b.total > 0) {
+    const s = isNum(d.block_s) ? d.block_s : 0.5;
+    rows.push(["time turning", `${Math.round(b.turning * s)} s`], ["time accelerating", `${Math.round(b.accelerating * s)} s`]);
+  }
+  if (!rows.length) rows.push(["refused", 0]);
+  $("refusals-head").textContent = `${d.motion === "hull" ? "Hull" : "Still"} detector · ${d.rest_check ? `rest check: ${d.rest_check}` : "no rest check (outputs not in deg/h and g)"}`;
+  $("refusal-counts").replaceChildren(...rows.map(([k, v]) => el("div", {}, el("dt", {}, k),
+    el("dd", {}, typeof v === "number" ? v.toLocaleString("en-GB") : v))));
+  box.hidden = false;
 }
 
 function renderLog(events) {
