@@ -88,6 +88,7 @@ class HullReport:
     """What the hull detector saw: blocks by state, windows kept and rejected by reason."""
 
     frames: int = 0
+    sample_rate_hz: float | None = None
     blocks: int = 0
     blocks_turning: int = 0
     blocks_accelerating: int = 0
@@ -237,18 +238,31 @@ def estimate_window(
 
     gyro_white = white(gyro)
     accel_white = white(accel)
-    # the motion's residual: 12 A_rms / (w T^2) per axis, w from rate RMS / angle RMS
-    a_rms = np.sqrt(np.mean(delta**2, axis=0))
+    # the motion's residual: 12 A_rms / (w T^2) per axis and per band. Waves (seconds) and a
+    # berth's yaw swing (minutes) are different motions on the same axes: split the oscillation
+    # at the longest wave period, so the slow part is not judged at the waves' frequency.
+    slowest = 2.0 * math.pi / T  # nothing slower than the window shows
+    # three passes of a box of one wave period: the waves leak about 1e-3 of their amplitude
+    # into the slow part (one pass leaks 10 %, enough to fake the slow part's frequency)
+    m = max(1, round(LONGEST_WAVE_S / dt))
+    slow = _box_smooth(_box_smooth(_box_smooth(delta, m), m), m)
+    motion_sq = np.zeros(3)
+    for part in (delta - slow, slow):
+        a_rms = np.sqrt(np.mean(part**2, axis=0))
+        r = np.diff(part, axis=0) / dt if n > 1 else np.zeros((1, 3))
+        r_rms = np.sqrt(np.mean(r**2, axis=0))
+        om_axis = np.maximum(
+            np.where(a_rms > 0, r_rms / np.maximum(a_rms, 1e-300), slowest), slowest
+        )
+        # (the largest over the oscillation's phase: sqrt 2 times the RMS over phases)
+        motion_sq += (_PHASE * 12.0 * a_rms / (om_axis * T**2)) ** 2
+    a_all = np.sqrt(np.mean(delta**2, axis=0))
+    tilt = float(np.sqrt(np.sum(a_all**2)))
     rate_res = rate + coning_rate - slope
     r_rms = np.sqrt(np.mean(rate_res**2, axis=0))
-    tilt = float(np.sqrt(np.sum(a_rms**2)))
-    # per axis: a slow yaw swing and fast roll are different motions
-    slowest = 2.0 * math.pi / T  # nothing slower than the window shows
-    om_axis = np.maximum(np.where(a_rms > 0, r_rms / np.maximum(a_rms, 1e-300), slowest), slowest)
     om = float(np.sqrt(np.sum(r_rms**2)) / tilt) if tilt > 0 else slowest
     om = max(om, slowest)
-    # (the largest over the oscillation's phase: sqrt 2 times the RMS over phases)
-    gyro_motion = _PHASE * 12.0 * a_rms / (om_axis * T**2) / _DPH_TO_RAD_S * np.abs(ref.gyro_scale)
+    gyro_motion = np.sqrt(motion_sq) / _DPH_TO_RAD_S * np.abs(ref.gyro_scale)
     f_res = f - f_bar
     acc_rms = np.sqrt(np.mean(f_res**2, axis=0))
     accel_resid = _PHASE * 12.0 * acc_rms / (om * T) ** 2
@@ -263,6 +277,17 @@ def estimate_window(
 
 
 # ---- the whole recording -----------------------------------------------------------------------
+def _box_smooth(x: np.ndarray, m: int) -> np.ndarray:
+    """Centred moving average of each column over m samples (shorter at the ends)."""
+    n = len(x)
+    if m <= 1 or n < 2:
+        return x.copy()
+    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    lo = np.clip(np.arange(n) - m // 2, 0, n)
+    hi = np.clip(np.arange(n) - m // 2 + m, 0, n)
+    return (c[hi] - c[lo]) / (hi - lo)[:, None]
+
+
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) of each run of True."""
     d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
@@ -293,7 +318,7 @@ def detect_hull(
         rate_hz = 1.0 / float(np.median(np.diff(time_s)))
     ok = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, bool)
     ok &= np.isfinite(gyro).all(axis=1) & np.isfinite(accel).all(axis=1)
-    report = HullReport(frames=n)
+    report = HullReport(frames=n, sample_rate_hz=float(rate_hz))
     state, B = block_states(gyro, accel, ok, rate_hz, ref, cfg)
     report.blocks = len(state)
     report.blocks_turning = int(np.sum(state == 1))
@@ -386,7 +411,7 @@ class HullDetector:
         self.ref = ref
         self.cfg = cfg or HullConfig()
         self.rate_hz = float(rate_hz)
-        self.report = HullReport()
+        self.report = HullReport(sample_rate_hz=self.rate_hz)
         self._chunks: list[tuple[np.ndarray, ...]] = []
         self._buffered = 0
         self._offset = 0  # global index of the buffer's first frame
