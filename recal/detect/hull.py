@@ -226,6 +226,7 @@ def estimate_window(
     S = (delta * w[:, None]).T @ delta
     M = np.eye(3) + 0.5 * (S - np.trace(S) * np.eye(3))
     f0 = np.linalg.solve(M, f_bar)
+    f0, lever_sem = _lever_arm(f, f0, delta, rate + coning_rate - slope, dt, cfg)
     accel_mean = (f0 + ref.accel_bias_g) * ref.accel_scale
     # white noise through the weights, from second differences (var(d2) = 6 sigma^2)
     sw2 = float(w @ w)
@@ -242,41 +243,98 @@ def estimate_window(
     # berth's yaw swing (minutes) are different motions on the same axes: split the oscillation
     # at the longest wave period, so the slow part is not judged at the waves' frequency.
     slowest = 2.0 * math.pi / T  # nothing slower than the window shows
-    # three passes of a box of one wave period: the waves leak about 1e-3 of their amplitude
-    # into the slow part (one pass leaks 10 %, enough to fake the slow part's frequency)
-    m = max(1, round(LONGEST_WAVE_S / dt))
-    slow = _box_smooth(_box_smooth(_box_smooth(delta, m), m), m)
-    motion_sq = np.zeros(3)
-    for part in (delta - slow, slow):
-        a_rms = np.sqrt(np.mean(part**2, axis=0))
-        r = np.diff(part, axis=0) / dt if n > 1 else np.zeros((1, 3))
-        r_rms = np.sqrt(np.mean(r**2, axis=0))
-        om_axis = np.maximum(
-            np.where(a_rms > 0, r_rms / np.maximum(a_rms, 1e-300), slowest), slowest
-        )
-        # (the largest over the oscillation's phase: sqrt 2 times the RMS over phases)
-        motion_sq += (_PHASE * 12.0 * a_rms / (om_axis * T**2)) ** 2
+    gyro_motion = _band_residual(delta, dt, T, slowest, power=1) / _DPH_TO_RAD_S
+    gyro_motion *= np.abs(ref.gyro_scale)
     a_all = np.sqrt(np.mean(delta**2, axis=0))
     tilt = float(np.sqrt(np.sum(a_all**2)))
     rate_res = rate + coning_rate - slope
     r_rms = np.sqrt(np.mean(rate_res**2, axis=0))
     om = float(np.sqrt(np.sum(r_rms**2)) / tilt) if tilt > 0 else slowest
     om = max(om, slowest)
-    gyro_motion = np.sqrt(motion_sq) / _DPH_TO_RAD_S * np.abs(ref.gyro_scale)
-    f_res = f - f_bar
-    acc_rms = np.sqrt(np.mean(f_res**2, axis=0))
-    accel_resid = _PHASE * 12.0 * acc_rms / (om * T) ** 2
-    # centripetal acceleration of an unknown lever arm: |w|^2 r at most, in g
-    omega2 = float(np.mean(np.sum(rate_res**2, axis=1)))
-    lever = omega2 * cfg.lever_arm_max_m / 9.80665 / math.sqrt(3.0)
+    # the specific force's oscillation, its white noise smoothed away first (half a second,
+    # which waves of 4 s and more pass): the parabolic mean keeps 12 a / (w^2 T^2) of it
+    m_short = max(1, round(0.5 / dt))
+    f_osc = _box_smooth(_box_smooth(f - f_bar, m_short), m_short)
+    accel_resid = _band_residual(f_osc, dt, T, slowest, power=2)
     second = 0.1 * np.abs(f0 - f_bar)
-    accel_motion = np.sqrt(accel_resid**2 + lever**2 + second**2) * np.abs(ref.accel_scale)
+    accel_motion = np.sqrt(accel_resid**2 + lever_sem**2 + second**2) * np.abs(ref.accel_scale)
     gyro_sem = np.sqrt(gyro_white**2 + gyro_motion**2)
     accel_sem = np.sqrt(accel_white**2 + accel_motion**2)
     return gyro_mean, accel_mean, gyro_sem, accel_sem, tilt, om, gyro_motion, accel_motion
 
 
 # ---- the whole recording -----------------------------------------------------------------------
+def _lever_arm(
+    f: np.ndarray, f0: np.ndarray, delta: np.ndarray, osc: np.ndarray, dt: float, cfg: HullConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The specific force without the lever arm's centripetal mean, and that correction's 1-sigma.
+
+    The IMU sits r from the hull's centre of rotation, so it also senses alpha x r (zero mean)
+    and w x (w x r), whose mean (E[w w^T] - E|w|^2 I) r is not zero: 48 ug at r = 5 m, 1 degree
+    of roll at 8 s. r is estimated from the tangential part, alpha x r, in the two channels across
+    gravity (heave acts along it): f - (f0 - delta x f0) regressed on [alpha]x, alpha from the
+    smoothed gyro oscillation. The correction's sigma comes from the regression; where the fit
+    cannot pin r down (too little motion: its sigma exceeds the bound's), or finds it beyond
+    3 x ``lever_arm_max_m``, no
+    correction is made and the sigma is the centripetal mean of a lever arm of
+    ``lever_arm_max_m`` (what the simple bound gives). f, f0 in g; osc in rad/s.
+    """
+    g0 = 9.80665
+    n = len(f)
+    W = (osc.T @ osc) / max(n, 1)  # E[w w^T], rad^2/s^2
+    J = (W - np.trace(W) * np.eye(3)) / g0  # centripetal mean per metre of r, g/m
+    bound = np.full(3, float(np.trace(W)) * cfg.lever_arm_max_m / g0 / math.sqrt(3.0))
+    if n < 8:
+        return f0, bound
+    m = max(1, round(0.5 / dt))
+    smooth = _box_smooth(_box_smooth(osc, m), m)
+    alpha = np.gradient(smooth, dt, axis=0)
+    u = f0 / max(float(np.linalg.norm(f0)), 1e-12)
+    P = np.eye(3) - np.outer(u, u)
+    e = (f - (f0 - np.cross(delta, f0))) @ P  # across gravity, g
+    # alpha x r = S(alpha) r, with S the cross-product matrix
+    S = np.zeros((n, 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -alpha[:, 2], alpha[:, 1], -alpha[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = alpha[:, 2], -alpha[:, 1], alpha[:, 0]
+    A = np.einsum("ij,njk->nik", P, S).reshape(-1, 3) / g0
+    A -= np.tile(A.reshape(n, 3, 3).mean(axis=0), (n, 1))
+    y = (e - e.mean(axis=0)).reshape(-1)
+    AtA = A.T @ A
+    if not np.all(np.isfinite(AtA)) or np.linalg.cond(AtA) > 1e12 or np.trace(AtA) == 0:
+        return f0, bound
+    r = np.linalg.solve(AtA, A.T @ y)
+    dof = max(len(y) - 3, 1)
+    # the samples' noise is not white at the smoothing's scale: count one sample per smoothing
+    s2 = float(np.sum((y - A @ r) ** 2)) / dof * m
+    cov_r = s2 * np.linalg.inv(AtA)
+    if not np.all(np.isfinite(r)) or np.linalg.norm(r) > 3.0 * cfg.lever_arm_max_m:
+        return f0, bound
+    c = J @ r
+    sem = np.sqrt(np.maximum(np.diag(J @ cov_r @ J.T), 0.0))
+    if np.any(sem > bound):  # the fit knows less than the bound: keep the bound, no correction
+        return f0, bound
+    return f0 - c, sem
+
+
+def _band_residual(x: np.ndarray, dt: float, T: float, slowest: float, power: int) -> np.ndarray:
+    """What a parabolic-weighted mean over T keeps of an oscillation x (n, 3), per axis: the
+    largest over its phase, sqrt(2) x 12 a_rms / (w^power T^2), for the waves (below the longest
+    wave period) and the slow part (above it) apart, in quadrature. power 1: x is an angle and the
+    mean is of its rate (the gyro); power 2: x itself is averaged (the accelerometer)."""
+    # three passes of a box of one wave period: the waves leak about 1e-3 of their amplitude
+    # into the slow part (one pass leaks 10 %, enough to fake the slow part's frequency)
+    m = max(1, round(LONGEST_WAVE_S / dt))
+    slow = _box_smooth(_box_smooth(_box_smooth(x, m), m), m)
+    out = np.zeros(x.shape[1])
+    for part in (x - slow, slow):
+        a_rms = np.sqrt(np.mean(part**2, axis=0))
+        d = np.diff(part, axis=0) / dt if len(part) > 1 else np.zeros((1, x.shape[1]))
+        r_rms = np.sqrt(np.mean(d**2, axis=0))
+        om = np.maximum(np.where(a_rms > 0, r_rms / np.maximum(a_rms, 1e-300), slowest), slowest)
+        out += (_PHASE * 12.0 * a_rms / (om**power * T**2)) ** 2
+    return np.sqrt(out)
+
+
 def _box_smooth(x: np.ndarray, m: int) -> np.ndarray:
     """Centred moving average of each column over m samples (shorter at the ends)."""
     n = len(x)
