@@ -242,9 +242,10 @@ def prior_near(
     rng: np.random.Generator | int | None = None,
     sigma: dict[str, float] | None = None,
 ) -> CoefficientSet:
-    """A previous calibration of the unit ``truth`` describes: every coefficient drawn around the
-    truth with the 1-sigma it carries (``sigma`` by name as :data:`PRIOR_SIGMA`), so a fit that
-    holds some at this prior is still right within the uncertainty it reports."""
+    """A previous calibration of the unit ``truth`` describes: every coefficient within the
+    1-sigma it carries of the truth (uniform in +-sigma; ``sigma`` by name as
+    :data:`PRIOR_SIGMA`), so a fit that holds some at this prior is right within the uncertainty
+    it reports, and one beyond 3 sigma of the truth is the fit's doing, never the prior's."""
     rng = np.random.default_rng(rng)
     sigma = {**PRIOR_SIGMA, **(sigma or {})}
     prior = truth.copy()
@@ -254,7 +255,7 @@ def prior_near(
         if sd is None:
             continue
         v = np.asarray(value, dtype=float)
-        prior.values[name] = v + sd * rng.standard_normal(v.shape)
+        prior.values[name] = v + sd * rng.uniform(-1.0, 1.0, v.shape)
         prior.uncertainty[name] = np.full(v.shape, float(sd))
     prior.metadata = {"source": "prior_near (simulated: the truth within its 1-sigma)"}
     return prior

@@ -21,12 +21,12 @@ import sys
 import time
 from pathlib import Path
 
-#: The --vessel session: 10-minute berth holds (a window's mean rate carries the net attitude
-#: change over its length: shorter holds blur the gyro), a small sea, turns that cover most of
-#: the compass (so the horizontal gyro biases are seen), 20 Hz (the replay takes seconds).
-VESSEL_HOLDS = 8
+#: The --vessel session: the issue-25 berth (12 holds of 10 min joined by 30-degree turns of
+#: 60 s; a window's mean rate carries the net attitude change over its length, so shorter holds
+#: blur the gyro) in a small sea, at 20 Hz (the replay takes seconds).
+VESSEL_HOLDS = 12
 VESSEL_HOLD_S = 600.0
-VESSEL_TURN_DEG = 45.0
+VESSEL_TURN_DEG = 30.0
 VESSEL_TURN_S = 60.0
 VESSEL_ROLL_DEG = 0.1
 VESSEL_YAW_SWING_DEG = 0.02

@@ -16,7 +16,7 @@ def test_demo_vessel_runs_the_hull_fixed_product(tmp_path, capsys):
     # one quasi-static window per hold, none overlapping a turn
     m = re.search(r"windows: (\d+) stored .*, (\d+) overlapping a turn", out)
     assert m is not None, out
-    assert int(m.group(1)) == 8 and int(m.group(2)) == 0, out
+    assert int(m.group(1)) == 12 and int(m.group(2)) == 0, out
     published = json.loads((folder / "coefficients.json").read_text())
     assert published["version"] >= 1 and published["held"], published.keys()
     assert "gyro.scale.Kz" in published["held"]  # a heading-only design cannot see it
