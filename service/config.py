@@ -221,7 +221,7 @@ class DetectorSettings(Section):
         1.0, ge=0, description="hull: largest heading swing at berth that is not a turn (deg)"
     )
     hull_trim_s: float = Field(
-        2.0, ge=0, description="hull: dropped at both ends of a quiet stretch (s)"
+        30.0, ge=0, description="hull: dropped at both ends of a quiet stretch (s)"
     )
     hull_lever_arm_max_m: float = Field(
         10.0,

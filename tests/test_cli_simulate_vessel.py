@@ -1,5 +1,5 @@
 """`recal simulate --berth / --indexing`: a hull-fixed FOG sample by sample (recal.sim.vessel),
-streamed to a CSV recording and a KVH capture; small sessions (3 holds of 200 s at 20 Hz)."""
+streamed to a CSV recording and a KVH capture; small sessions (3 holds of 300 s at 20 Hz)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from service.cli import simulate as sim_cli
 from service.cli.main import build_parser, main
 
 RATE = 20.0
-SMALL = ["--berth", "--holds", "3", "--hold", "200", "--rate", "20", "--seed", "2"]
+SMALL = ["--berth", "--holds", "3", "--hold", "300", "--rate", "20", "--seed", "2"]
 
 
 def _schedule(path: Path) -> list[dict[str, str]]:
@@ -77,8 +77,8 @@ def test_berth_writes_a_csv_recording_a_capture_the_truth_and_the_schedule(
             "--capture", str(cap), "--truth-out", str(truth), "--track", str(track)]  # fmt: skip
     assert main(["simulate", *argv]) == 0
     err = capsys.readouterr().err
-    assert "3 berth holds of 200 s" in err and "--motion hull" in err, err
-    duration = 3 * 200 + 2 * 60
+    assert "3 berth holds of 300 s" in err and "--motion hull" in err, err
+    duration = 3 * 300 + 2 * 60
     n = round(duration * RATE)
     # the recording: docs/reference.md#csv, time from 0 at the rate, deg/h and g
     data = np.loadtxt(rec, delimiter=",", skiprows=1)

@@ -11,7 +11,8 @@ time scale of the waves and by physics:
    plausible coefficient error, the waves' residual in that average, and the largest heading
    change a berth swing makes (``max_swing_deg`` twice over ``turn_window_s``): a turn of 0.1
    deg/s and more (``shared/spec/vessel.md``) always is. A block is *accelerating* when the
-   averaged specific force is not gravity. Runs of the other blocks, trimmed by ``trim_s``, cut
+   averaged specific force is not gravity. Runs of the other blocks, trimmed by ``trim_s`` (half
+   the turn window: a slow turn's first seconds move the average too little to be seen), cut
    into pieces of at most ``max_window_s``, and at least ``min_window_s`` long, are the
    candidate windows.
 2. **The window's rate** is the least-squares slope of the attitude the gyro integrates (the
@@ -63,7 +64,7 @@ class HullConfig:
     block_s: float = 0.5
     turn_window_s: float = 60.0
     max_swing_deg: float = 1.0
-    trim_s: float = 2.0
+    trim_s: float = 30.0
     min_window_s: float = 120.0
     max_window_s: float = 1800.0
     lever_arm_max_m: float = 10.0
@@ -169,14 +170,23 @@ def block_states(
     f = ref.force_g(am)
     W = _moving(w, kern)
     F = _moving(f, kern)
-    # the waves' residual in a parabolic average: 12 rho / (w^2 L^2) for a rate oscillation of
-    # RMS rho at angular frequency w; the longest wave period is the worst case
-    rho_w = np.sqrt(np.maximum(_moving(w**2, kern) - W**2, 0.0).sum(axis=1))
-    rho_f = np.sqrt(np.maximum(_moving(f**2, kern) - F**2, 0.0).sum(axis=1))
+    # the waves' residual in a parabolic average: 12 rho / (w^2 L^2) for an oscillation of RMS rho
+    # at angular frequency w. w is measured: the RMS of the oscillation's rate of change over its
+    # RMS (divided by 1.5 for safety), never slower than the longest wave period. Taking that
+    # worst case everywhere made rough seas hide turns (3 degrees of roll: 600 deg/h of bound).
     span = L * cfg.block_s
-    om = 2.0 * math.pi / LONGEST_WAVE_S
-    wave_w = 12.0 * rho_w / (om * span) ** 2
-    wave_f = 12.0 * rho_f / (om * span) ** 2
+    om_min = 2.0 * math.pi / LONGEST_WAVE_S
+
+    def residual(x: np.ndarray, X: np.ndarray) -> np.ndarray:
+        rho = np.sqrt(np.maximum(_moving(x**2, kern) - X**2, 0.0).sum(axis=1))
+        d = np.vstack([np.diff(x, axis=0), np.zeros((1, 3))]) / cfg.block_s
+        D = _moving(d, kern)
+        rho_d = np.sqrt(np.maximum(_moving(d**2, kern) - D**2, 0.0).sum(axis=1))
+        om = np.maximum(rho_d / np.maximum(rho, 1e-300) / 1.5, om_min)
+        return 12.0 * rho / (om * span) ** 2
+
+    wave_w = residual(w, W)
+    wave_f = residual(f, F)
     swing_dph = 2.0 * cfg.max_swing_deg / span * 3600.0
     Wn = np.linalg.norm(W, axis=1)
     Fn = np.linalg.norm(F, axis=1)

@@ -54,6 +54,6 @@ def test_long_holds_split_into_windows_keep_every_hold() -> None:
     # every hold gives windows; where a long hold is split, up to half a turn window and the trim
     # are lost at the split (the next piece's first blocks need the average before them)
     assert {int(np.searchsorted(s.hold_first, a, side="right")) for a, _ in inc} == {1, 2, 3}
-    assert kept >= sum(b - a for a, b in bulk) - (len(inc) - s.n_holds) * 33 * RATE
+    assert kept >= sum(b - a for a, b in bulk) - (len(inc) - s.n_holds) * 63 * RATE
     for a, b in inc:
         assert ((s.hold_first <= a) & (b <= s.hold_last)).sum() == 1
