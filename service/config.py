@@ -209,7 +209,7 @@ class DetectorSettings(Section):
         120.0, gt=0, description="hull: shortest quasi-static window (s; many wave periods)"
     )
     hull_max_window_s: float = Field(
-        1800.0, gt=0, description="hull: a longer quiet stretch is cut into windows this long (s)"
+        900.0, gt=0, description="hull: a longer quiet stretch is cut into windows this long (s)"
     )
     hull_turn_window_s: float = Field(
         60.0,

@@ -66,7 +66,7 @@ class HullConfig:
     max_swing_deg: float = 1.0
     trim_s: float = 30.0
     min_window_s: float = 120.0
-    max_window_s: float = 1800.0
+    max_window_s: float = 900.0
     lever_arm_max_m: float = 10.0
     max_gap_frames: int = 5
 
@@ -471,7 +471,7 @@ class HullDetector:
     then it runs :func:`detect_hull` on the buffer, emits the windows that end at least two turn
     windows before the buffer's end (the rest may still grow), and drops the frames it has
     decided, never those of a window still waiting nor the half turn window its first blocks are
-    judged with. Memory is bounded by that buffer (33 min at the defaults). Window times and
+    judged with. Memory is bounded by that buffer (18 min at the defaults). Window times and
     indices count from the first frame fed.
     """
 

@@ -72,7 +72,7 @@ def test_hull_keys_default_to_the_hull_detector_defaults() -> None:
     assert built == HullConfig()  # every field, block_s (not a key) included
     tuned = DetectorSettings(hull_max_window_s=600.0, hull_max_swing_deg=0.5).hull_config()
     assert (tuned.max_window_s, tuned.max_swing_deg) == (600.0, 0.5)
-    assert dataclasses.replace(tuned, max_window_s=1800.0, max_swing_deg=1.0) == built
+    assert dataclasses.replace(tuned, max_window_s=900.0, max_swing_deg=1.0) == built
 
 
 def test_hull_daemon_stores_the_holds_and_counts_the_turns(tmp_path, berth, serve, replay) -> None:
