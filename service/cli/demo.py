@@ -202,7 +202,6 @@ def _simulate_vessel(
 
 
 def _print_summary(service, truth) -> None:
-    import numpy as np
 
     store = service.store
     history = list(reversed(store.history(limit=50)))
@@ -224,13 +223,7 @@ def _print_summary(service, truth) -> None:
     doc = current.document
     print(f"\naccepted version {current.version} against the simulated truth "
           "(error / reported 1-sigma):")  # fmt: skip
-    for sensor in ("gyro", "accel"):
-        for key in ("scale", "bias"):
-            est = np.array(doc["coefficients"][sensor][key])
-            sd = np.array(doc["uncertainty"][sensor][key], dtype=float)
-            true = truth.values[f"{sensor}.{key}"]
-            z = (est - true) / sd
-            print(f"  {sensor}.{key:6s} " + "  ".join(f"{v:+5.2f}" for v in z))
+    _print_against_truth(doc, truth, mark_held=False)
     print(f"\npublished: {service.publisher.path}\ndatabase:  {service.settings.database_url}")
 
 
@@ -264,19 +257,29 @@ def _print_vessel_summary(service, truth, turns: list[tuple[float, float]]) -> N
     doc = current.document
     print(f"\naccepted version {current.version} against the simulated truth "
           "(error / reported 1-sigma; h: held at the prior):")  # fmt: skip
-    for sensor in ("gyro", "accel"):
-        for key in ("scale", "bias"):
-            est = np.array(doc["coefficients"][sensor][key])
-            sd = np.array(doc["uncertainty"][sensor][key], dtype=float)
-            status = doc["status"][sensor][key]
-            z = (est - truth.values[f"{sensor}.{key}"]) / sd
-            print(f"  {sensor}.{key:6s} " + "  ".join(
-                f"{v:+5.2f}{'h' if st == 'held' else ' '}" for v, st in zip(z, status, strict=True)
-            ))  # fmt: skip
+    _print_against_truth(doc, truth, mark_held=True)
     nav = doc.get("navigation") or {}
     if nav.get("summary"):
         print(f"\nnavigation: {nav['summary']}")
     print(f"\npublished: {service.publisher.path}\ndatabase:  {service.settings.database_url}")
+
+
+def _print_against_truth(doc: dict, truth, mark_held: bool) -> None:
+    """Each scale and bias's error over its reported 1-sigma, marked h where held at the prior."""
+    import numpy as np
+
+    for sensor in ("gyro", "accel"):
+        for key in ("scale", "bias"):
+            est = np.array(doc["coefficients"][sensor][key])
+            sd = np.array(doc["uncertainty"][sensor][key], dtype=float)
+            z = (est - truth.values[f"{sensor}.{key}"]) / sd
+            marks = [
+                ("h" if st == "held" else " ") if mark_held else ""
+                for st in doc["status"][sensor][key]
+            ]
+            print(f"  {sensor}.{key:6s} " + "  ".join(
+                f"{v:+5.2f}{m}" for v, m in zip(z, marks, strict=True)
+            ))  # fmt: skip
 
 
 def _api_token() -> str:
