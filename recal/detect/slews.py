@@ -885,6 +885,7 @@ def slew_residuals(
     basis: np.ndarray,
     earth_rate: bool,
     zero_rate: np.ndarray | None = None,
+    same_gyro: np.ndarray | None = None,
 ) -> np.ndarray:
     """Slew residuals (P, 2 S), rad: the gravity direction the integrated gyro predicts at
     window ``second`` against the measured one, ``u_meas x u_pred`` on ``basis`` (S, 2, 3).
@@ -895,21 +896,30 @@ def slew_residuals(
     u_(k+1) = C^T exp([w_k T]x) u_k. Without it, that rotation (Omega cos(lat) T, about north)
     is left in the noise budget (:func:`slew_sigma`); ``zero_rate`` is then the output taken as
     zero rate over each slew (:func:`slew_rotations`).
+    ``same_gyro`` (P,): for each row, a row with the same gyro parameters (the integration is
+    done once per distinct row: a Jacobian along accelerometer coefficients needs none); None:
+    every row its own.
     Evaluated in batches over P so the temporaries stay bounded.
     """
     P, S = A.shape[0], len(slews)
     out = np.empty((P, S, 2))
     step = max(1, _BATCH_ELEMENTS // max(S * slews.sums.shape[1], 1))
-    for a in range(0, P, step):  # a loop over batches of parameter vectors, not samples
-        b = min(a + step, P)
-        q, rest = slew_rotations(slews, gain[a:b], A[a:b], offset[a:b], zero_rate)
-        u1 = f_first[a:b] / np.linalg.norm(f_first[a:b], axis=-1, keepdims=True)
-        if earth_rate:
-            u1 = rodrigues(rest * slews.duration_s[None, :, None], u1)
-        pred = rotate_back(q, u1)
-        u2 = f_second[a:b] / np.linalg.norm(f_second[a:b], axis=-1, keepdims=True)
-        err = np.cross(u2, pred)
-        out[a:b] = np.einsum("psi,sji->psj", err, basis)
+    need, back = np.unique(np.arange(P) if same_gyro is None else same_gyro, return_inverse=True)
+    back = back.reshape(-1)
+    for a in range(0, need.size, step):  # a loop over batches of parameter vectors, not samples
+        i = need[a : a + step]
+        q_all, rest_all = slew_rotations(slews, gain[i], A[i], offset[i], zero_rate)
+        rows = np.flatnonzero((back >= a) & (back < a + step))
+        for c in range(0, rows.size, step):  # the rows that share these gyro parameters
+            r = rows[c : c + step]
+            q, rest = q_all[back[r] - a], rest_all[back[r] - a]
+            u1 = f_first[r] / np.linalg.norm(f_first[r], axis=-1, keepdims=True)
+            if earth_rate:
+                u1 = rodrigues(rest * slews.duration_s[None, :, None], u1)
+            pred = rotate_back(q, u1)
+            u2 = f_second[r] / np.linalg.norm(f_second[r], axis=-1, keepdims=True)
+            err = np.cross(u2, pred)
+            out[r] = np.einsum("psi,sji->psj", err, basis)
     return out.reshape(P, 2 * S)
 
 

@@ -32,10 +32,11 @@ from recal.model.coefficients import CoefficientSet, layout_like
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.plugins import bind_context, plugin_file, values_by_term
 from recal.model.positions import Positions
-from recal.model.reference import OMEGA_IE_DEG_H, normal_gravity_g
+from recal.model.reference import OMEGA_IE_DEG_H
 from recal.model.terms import Term, catalogue_terms
+from recal.solve.believable import unbelievable
 from recal.solve.consider import consider_covariance, prior_sigma, sensor_class
-from recal.solve.convergence import fixed_point, swarm_convergence
+from recal.solve.convergence import fixed_point, projected_start, swarm_convergence
 from recal.solve.lm import covariance, solve_lm
 from recal.solve.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
 from recal.solve.observability import (
@@ -48,9 +49,12 @@ from recal.solve.observability import (
 )
 from recal.solve.phases import paper_phases, whitened_phase
 from recal.solve.problem import Problem
+from recal.solve.start import data_prior, references
 from recal.solve.swarm import SwarmConfig
 
 METHODS = ("lm",) + SWARM_METHODS
+#: The steps :func:`calibrate` reports to its ``progress`` callback with LM (one call each).
+LM_STEPS = ("set-up", "observability", "fit", "fixed point", "uncertainty")
 UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
          "rotation": "rad", "closure": "rad"}  # fmt: skip
 #: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
@@ -309,83 +313,29 @@ def _plugin_metadata(layout: ParameterLayout) -> dict[str, Any]:
     return {"plugins": files} if files else {}
 
 
-def ellipsoid_start(output: np.ndarray, reference: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Per-axis scale (output/input unit) and bias (input units) from an axis-aligned
-    ellipsoid fit to the outputs: a x^2 + b y^2 + c z^2 + d x + e y + f z = 1 by least squares.
-
-    Returns None when the positions do not span the sphere well enough for the fit (then the
-    caller falls back to a common scale); the solver refines the result anyway.
-    """
-    if len(output) < 8:
-        return None
-    span = np.ptp(output, axis=0)
-    centre = output.mean(axis=0)
-    u = (output - centre) / np.where(span > 0, span, 1.0)  # conditioned coordinates
-    G = np.column_stack([u**2, u])
-    coef, *_ = np.linalg.lstsq(G, np.ones(len(u)), rcond=None)
-    sv = np.linalg.svd(G, compute_uv=False)
-    a, d = coef[:3], coef[3:]
-    if sv[-1] < 1e-6 * sv[0] or np.any(a <= 0):
-        return None
-    c = -d / (2 * a)
-    g = 1 + np.sum(a * c * c)
-    if g <= 0:
-        return None
-    radius = np.sqrt(g / a) * span  # semi-axes in output units
-    scale = radius / reference
-    bias = (centre + c * span) / scale
-    return scale, bias
-
-
-def data_prior(positions: Positions, layout: ParameterLayout, lat: float, h: float) -> np.ndarray:
-    """A prior from the data alone: scale and bias per axis from an ellipsoid fit of each triad's
-    outputs (a common scale from the median norm when the positions cannot support the fit);
-    misalignment and every other term neutral."""
-    theta = layout.neutral()
-    refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
-    slices = layout.term_slices()
-    for m in layout.models:
-        out = positions.gyro if m.sensor == "gyro" else positions.accel
-        fit = ellipsoid_start(out, refs[m.sensor])
-        if fit is None:
-            theta[slices[f"{m.sensor}.scale"]] = (
-                np.median(np.linalg.norm(out, axis=1)) / refs[m.sensor]
-            )
-        else:
-            theta[slices[f"{m.sensor}.scale"]] = fit[0]
-            theta[slices[f"{m.sensor}.bias"]] = fit[1]
-    return theta
-
-
 def describe_prior(
-    positions: Positions,
     layout: ParameterLayout,
     theta0: np.ndarray,
-    lat: float,
-    h: float,
+    how: dict[str, str],
     given: CoefficientSet | None = None,
     gyro_from_slews: bool = False,
 ) -> str:
     """What the prior ``theta0`` is, true to its values: the given file and the terms it lacks
-    (taken from the data), how each triad's scale and bias were derived from the data (an
-    ellipsoid fit, or a common scale from the median norm when the positions cannot support
-    one; the slews for a gyro blind to Earth rate), and which other terms start at zero."""
+    (taken from the data), how each triad's scale and bias were derived from the data (``how``,
+    :class:`recal.solve.start.DataPrior`: an ellipsoid fit, or a common scale from the median
+    norm when the positions cannot support one; the slews for a gyro blind to Earth rate), and
+    which other terms start at zero."""
     slices = layout.term_slices()
     from_data = [t for m in layout.models for t in m.terms
                  if given is None or given.values.get(t.name) is None]  # fmt: skip
     parts = []
-    refs = {"gyro": OMEGA_IE_DEG_H, "accel": normal_gravity_g(lat, h)}
     for m in layout.models:
         if not any(t.name in (f"{m.sensor}.scale", f"{m.sensor}.bias") for t in from_data):
             continue
         if m.sensor == "gyro" and gyro_from_slews:
-            how = "common scale from the slews, bias the mean window output"
-        elif ellipsoid_start(positions.gyro if m.sensor == "gyro" else positions.accel,
-                             refs[m.sensor]) is None:  # fmt: skip
-            how = "common scale from the median norm, bias zero (no ellipsoid fit: too few or too alike positions)"
+            parts.append("gyro: common scale from the slews, bias the mean window output")
         else:
-            how = "scale and bias from an ellipsoid fit"
-        parts.append(f"{m.sensor}: {how}")
+            parts.append(f"{m.sensor}: {how[m.sensor]}")
     zero = [t.name for t in from_data if t.group not in ("scale", "bias")
             and np.all(theta0[slices[t.name]] == np.asarray(t.neutral, float))]  # fmt: skip
     if zero:
@@ -397,37 +347,6 @@ def describe_prior(
         return f"data-derived ({'; '.join(parts)})"
     source = str(given.metadata.get("source", "given prior"))
     return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
-
-
-#: A held coefficient that moved by less than this share of its 1-sigma is not worth naming.
-HELD_MOVE_SIGMA = 0.1
-
-
-def held_moved(
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    theta: np.ndarray,
-    report: ObservabilityReport,
-    sd: np.ndarray,
-) -> str | None:
-    """A note naming the held coefficients whose value moved off the prior by at least
-    :data:`HELD_MOVE_SIGMA` of their 1-sigma ``sd``: a coefficient is held when less than half
-    of it lies in the observable directions, but the part that does moves with the estimated
-    combinations. None when no held value moved that much."""
-    moved = [
-        f"{n} {theta0[i]:.6g} -> {theta[i]:.6g} ({(theta[i] - theta0[i]) / sd[i]:+.2g} sigma; "
-        f"{100 * report.share[i]:.2g} % of it observable)"
-        for i, n in enumerate(layout.names)
-        if not report.estimated[i]
-        and abs(theta[i] - theta0[i]) >= HELD_MOVE_SIGMA * sd[i]
-        and not np.isclose(theta[i], theta0[i], rtol=1e-9, atol=0)
-    ]
-    if not moved:
-        return None
-    return (
-        "held coefficients that moved off the prior with the estimated combinations they "
-        f"share: {'; '.join(moved)}"
-    )
 
 
 #: Position-to-position spread of the gyro outputs, in window-noise units, below which Earth
@@ -555,8 +474,7 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
     if report.verdict == "insufficient":
         notes.append(
             f"partial calibration: {report.message}; what the data do not show of them is "
-            "held at the prior with its uncertainty (a coefficient less than 25 % seen is "
-            "'held'), the rest is estimated"
+            "held exactly at the prior with its uncertainty ('held'), the rest is estimated"
         )
     reasons: dict[str, list[str]] = {}
     for d, r in zip(report.held_directions, report.held_reasons, strict=True):
@@ -609,11 +527,25 @@ def _usable_slews(positions: Positions, opt: CalibrationOptions, notes: list[str
     return slews if len(slews) else None
 
 
+#: The common-scale search of :func:`slew_prior` uses at most this many slews, evenly spread
+#: (it tries 600 scale factors: on every slew of a long voyage that alone took seconds).
+SLEW_PRIOR_SLEWS = 256
+
+
 def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
     """A gyro prior from the slews for a gyro that cannot see Earth rate: a common scale factor
     by a batched search on the slew residuals (a coarse log grid over a decade either side of
     the ratio of raw integrated output to the gravity-direction change, both signs, then a fine
-    one), the bias the mean window output over that scale, misalignment zero."""
+    one; on at most :data:`SLEW_PRIOR_SLEWS` slews), the bias the mean window output over that
+    scale, misalignment zero."""
+    assert problem.slews is not None and problem.slew_basis is not None
+    if len(problem.slews) > SLEW_PRIOR_SLEWS:
+        keep = np.unique(
+            np.linspace(0, len(problem.slews) - 1, SLEW_PRIOR_SLEWS).round().astype(int)
+        )
+        problem = replace(problem, slews=problem.slews.subset(keep),
+                          slew_basis=problem.slew_basis[keep], known_rotations=None,
+                          closed_turns=None)  # fmt: skip
     slews = problem.slews
     assert slews is not None
     sl = problem.layout.term_slices()
@@ -690,6 +622,9 @@ class _SetUp(NamedTuple):
     prior_source: str
     problem: Problem
     typical: np.ndarray  # typical change per parameter, (D,)
+    held: HeldUncertainty  # the prior's 1-sigma
+    #: the observability at the prior and an LM fit on it, when set-up already made them
+    first: tuple[ObservabilityReport, np.ndarray] | None
 
 
 def _slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: float) -> bool:
@@ -718,25 +653,39 @@ def _slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: f
 SLEW_EXCESS_SIGNIFICANCE = 3.0
 
 
-def slew_excess(problem: Problem, theta0: np.ndarray, typical: np.ndarray) -> tuple[float, float]:
+class SlewExcess(NamedTuple):
+    """:func:`slew_excess`: the excess and the slews' chi2_red before it; without an excess the
+    observability at the prior and the LM fit on it, which calibrate then reuses."""
+
+    excess: float
+    chi2_first: float
+    report: ObservabilityReport | None = None
+    theta: np.ndarray | None = None
+
+
+def slew_excess(
+    problem: Problem, theta0: np.ndarray, typical: np.ndarray, weights: np.ndarray | None = None
+) -> SlewExcess:
     """(excess, chi2_red of the slews before it): the unmodelled error per slew residual, rad,
     that makes the slews' chi2_red 1 at the fit, by the method of moments, iterated with the fit
     (3 rounds at most), or 0 when the slews fit to their window noise within
-    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors.
+    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors. ``weights``: as for
+    :func:`recal.solve.observability.analyze`.
 
     Why: on a real hand-turned MEMS session (imucal's Ferraris example) the face flips misfit by
     3-30 mrad against a noise floor of 0.3 mrad whatever the linear gyro model, while the closed
     turns fit; weighted by the window noise alone the flips would decide the scale factors and
     outweigh the turns 10:1. The excess gives each slew the weight its scatter allows."""
     if problem.slews is None or not problem.noise_known_for("slew"):
-        return 0.0, float("nan")
+        return SlewExcess(0.0, float("nan"))
     n = problem.n_of("slew")
     base = problem.sigma["slew"]
     theta, excess, chi2_first = theta0, 0.0, float("nan")
     prob = problem
     # the directions the window noise lets the slews see, kept through the rounds (judged
     # again on the inflated noise, fewer are seen, the misfit grows and the excess runs away)
-    T = typical[:, None] * analyze(prob, theta0, typical).basis
+    report = analyze(prob, theta0, typical, weights=weights)
+    T = typical[:, None] * report.basis
     for _ in range(4):
         lm = solve_lm(prob, theta0, T)
         theta = lm.theta
@@ -745,14 +694,14 @@ def slew_excess(problem: Problem, theta0: np.ndarray, typical: np.ndarray) -> tu
         if np.isnan(chi2_first):
             chi2_first = chi2
             if chi2 < 1.0 + SLEW_EXCESS_SIGNIFICANCE * np.sqrt(2.0 / n):
-                return 0.0, chi2_first
+                return SlewExcess(0.0, chi2_first, report, theta)
         new = float(np.sqrt(max(np.mean(r**2 - base**2), 0.0)))
         if abs(new - excess) <= 0.1 * max(new, 1e-300):
             excess = new
             break
         excess = new
         prob = replace(prob, slew_excess_rad=excess).at(theta0)
-    return excess, chi2_first
+    return SlewExcess(excess, chi2_first)
 
 
 def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
@@ -824,12 +773,12 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
         slews = None
     models = build_models(sensors, opt.effects, opt.plugin_terms, opt.t0_c)
     layout = ParameterLayout(models)
+    start = data_prior(positions, layout, opt.latitude_deg, opt.height_m, MIN_EARTH_RATE_CONTRAST)
     if opt.prior is not None:
-        theta_data = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
-        fallback = {n: theta_data[sl] for n, sl in layout.term_slices().items()}
+        fallback = {n: start.theta[sl] for n, sl in layout.term_slices().items()}
         theta0 = opt.prior.to_vector(layout, fallback)
     else:
-        theta0 = data_prior(positions, layout, opt.latitude_deg, opt.height_m)
+        theta0 = start.theta
     # plugin terms may need site quantities or extra columns: bound to these positions here
     models = bind_context(models, positions, values_by_term(layout, theta0), opt.latitude_deg,
                           opt.height_m, with_slews=slews is not None)  # fmt: skip
@@ -850,18 +799,13 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     if slews is not None:
         # Earth's turn over the slews: taken out where a window mean measures Earth rate better
         # than leaving it in (a FOG), else left in with the zero rate from the two windows (a
-        # MEMS gyro). The gyro's scale for that judgement: the prior's, else the slews' own
-        # (a MEMS gyro's output norm at rest is its bias, not Earth rate)
-        earth_rate = False
-        from_slews = slew_prior(build(theta0), theta0)
-        scale = (
-            prior_scale
-            if prior_scale is not None
-            else from_slews[layout.term_slices()["gyro.scale"]]
-        )
-        # a gyro whose window means do not follow Earth rate (bias wander, problem_gyro) is
+        # MEMS gyro). The gyro's scale for that judgement: the prior's, else the median output
+        # norm over Earth rate -- a gyro whose window means do not follow Earth rate
+        # (problem_gyro: bias wander, or a MEMS whose output norm at rest is its bias) is
         # treated as blind to it even when its white noise alone would allow it
-        earth_rate = not problem_gyro and _slews_see_earth_rate(positions, scale, opt.latitude_deg)
+        earth_rate = not problem_gyro and _slews_see_earth_rate(
+            positions, prior_scale, opt.latitude_deg
+        )
         blind = not earth_rate
         if blind:
             notes.append(
@@ -871,10 +815,19 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
                 "windows, and the bias's typical change is taken as the larger of "
                 f"{SLEW_GYRO_BIAS_TYPICAL_DPH:.4g} deg/h and 1000 ppm of the bias"
             )
-            if opt.prior is None:
-                theta0 = from_slews
+            if opt.prior is None:  # the gyro's start from the slews
+                theta0 = slew_prior(build(theta0), theta0)
     problem = build(theta0)
     typical = layout.typical(theta0)
+    own = None  # the data-derived start's own 1-sigma (a blind gyro's start is the slews')
+    if opt.prior is None and start.sigma.shape == theta0.shape:
+        own = start.sigma.copy()
+        if blind:
+            own[layout.model_slices()["gyro"]] = np.nan
+    # the prior's 1-sigma: what a held coefficient carries, and which of two coefficients that
+    # trade off is estimated (the one whose prior uncertainty shows more in the invariants)
+    held = _prior_uncertainty(positions, problem.layout, theta0, typical, opt, own)
+    first = None
     if slews is not None:
         notes.append(
             f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
@@ -889,7 +842,10 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
                 f"x 360 deg about the vertical): each taken as exactly whole turns, heading "
                 f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (--turn-closure)"
             )
-        excess, chi2_slews = slew_excess(problem, theta0, typical)
+        fit = slew_excess(problem, theta0, typical, held.sigma / typical)
+        excess, chi2_slews = fit.excess, fit.chi2_first
+        if excess == 0 and fit.report is not None and fit.theta is not None:
+            first = (fit.report, fit.theta)
         if excess > 0:
             plain, problem = problem, build(theta0)
             if (
@@ -914,9 +870,24 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
         shares = _information_shares(problem, theta0, typical)
         if shares:
             notes.append(shares)
-    prior_source = describe_prior(positions, layout, theta0, opt.latitude_deg, opt.height_m,
-                                  opt.prior, gyro_from_slews=blind and opt.prior is None)  # fmt: skip
-    return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical)
+    prior_source = describe_prior(layout, theta0, start.how, opt.prior,
+                                  gyro_from_slews=blind and opt.prior is None)  # fmt: skip
+    return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical, held, first)
+
+
+def _prior_uncertainty(
+    positions: Positions,
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    opt: CalibrationOptions,
+    start_sigma: np.ndarray | None = None,
+) -> HeldUncertainty:
+    """The prior's 1-sigma per parameter (recal.solve.consider.prior_sigma) and where it came from."""
+    cls = sensor_class(positions, layout, theta0, MIN_EARTH_RATE_CONTRAST)
+    given = opt.prior.uncertainty if opt.prior else None
+    sigma, source = prior_sigma(layout, theta0, typical, given, cls, start_sigma)
+    return HeldUncertainty(cls, source, sigma)
 
 
 def check_design(
@@ -931,7 +902,9 @@ def check_design(
     opt = options or CalibrationOptions()
     su = _set_up(positions, opt)
     info_min = INFO_MIN if su.problem.noise_known else 0.0
-    report = _decided(analyze(su.problem, su.theta0, su.typical, info_min=info_min))
+    weights = su.held.sigma / su.typical
+    report = _decided(analyze(su.problem, su.theta0, su.typical, info_min=info_min,
+                              weights=weights))  # fmt: skip
     if not partial_ok and report.verdict == "insufficient":
         raise RecalInputError(f"only a partial calibration: {report.message}")
 
@@ -941,33 +914,51 @@ def calibrate(
     options: CalibrationOptions | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> CalibrationResult:
-    """Recalibrate from static positions. Raises :class:`RecalInputError` for unusable input."""
+    """Recalibrate from static positions. Raises :class:`RecalInputError` for unusable input,
+    a design from which nothing can be estimated, or a result that cannot be believed
+    (:mod:`recal.solve.believable`).
+
+    ``progress``: called as the work advances -- for a swarm with the Monte Carlo runs done
+    (fractions as a batch goes through its cycles), for LM with 1 per step of :data:`LM_STEPS`.
+    """
     opt = options or CalibrationOptions()
     t_start = time.perf_counter()
+
+    def step() -> None:  # LM: one of LM_STEPS done
+        if progress is not None and opt.method == "lm":
+            progress(1)
+
     if opt.method not in METHODS:
         raise RecalInputError(f"--method must be one of {', '.join(METHODS)}, not {opt.method!r}")
     if opt.method != "lm" and opt.mc_runs < 1:
         raise RecalInputError("--mc must be at least 1")
     if not -90 <= opt.latitude_deg <= 90:
         raise RecalInputError(f"--latitude {opt.latitude_deg} is outside [-90, 90] deg")
-    sensors, notes, layout, theta0, prior_source, problem, typical = _set_up(positions, opt)
+    su = _set_up(positions, opt)
+    sensors, notes, layout, theta0, prior_source, problem, typical, held_sigma, _ = su
+    step()
+    weights = held_sigma.sigma / typical
     evaluations = 0
     theta_fit: np.ndarray | None = None  # an LM optimum on report.basis, when one exists
-    if problem.noise_known:
-        report = _decided(analyze(problem, theta0, typical))
+    if problem.noise_known and su.first is not None:
+        report, theta_fit = _decided(su.first[0]), su.first[1]  # set-up's fit (slews)
+    elif problem.noise_known:
+        report = _decided(analyze(problem, theta0, typical, weights=weights))
     else:
         # Noise first: the provisional sigma is no noise information, so judge structural rank
         # only, fit, estimate the noise from the residuals, and decide on that.
-        structural = _decided(analyze(problem, theta0, typical, info_min=0.0))
+        structural = _decided(analyze(problem, theta0, typical, info_min=0.0, weights=weights))
         if structural.redundancy > 0:
             lm = solve_lm(problem, theta0, typical[:, None] * structural.basis)
             evaluations += lm.evaluations
             problem = problem.with_sigma_from_residuals(lm.theta, structural.rank)
-            report = _decided(analyze(problem, lm.theta, typical), "on the estimated noise")
+            report = _decided(analyze(problem, lm.theta, typical, weights=weights),
+                              "on the estimated noise")  # fmt: skip
             if len(problem.invariant_names) == 1 and _same_span(report.basis, structural.basis):
                 theta_fit = lm.theta  # a uniform sigma rescales chi2 but cannot move the optimum
         else:
             report = structural  # no redundancy: the noise cannot be estimated
+    step()
     mcs = None
     T = typical[:, None] * report.basis
     if opt.method == "lm":
@@ -1010,6 +1001,7 @@ def calibrate(
         if opt.polish:
             lm = solve_lm(problem, theta, T)
             theta, evaluations = lm.theta, evaluations + lm.evaluations
+    step()
     info_min = INFO_MIN if report.noise_decided else 0.0
     if opt.method == "lm" or opt.polish:
         fixed = fixed_point(problem, theta, theta0, typical, report.basis)
@@ -1018,31 +1010,64 @@ def calibrate(
     else:
         convergence = swarm_convergence(problem, theta, theta0, typical, info_min, opt.method)
         evaluations += convergence.pop("evaluations", 0)
-    report = analyze(problem, theta, typical, info_min=info_min)
+    step()
+    solved = report
+    report = analyze(problem, theta, typical, info_min=info_min, weights=weights)
     if opt.refuse_at_solution:
         report = _decided(report, "at the solution")
+    if opt.paper and opt.method != "lm":
+        # the seed's swarm searched every direction, the held ones too: those go back to the
+        # prior (their values were arbitrary), only the observable part of its answer is kept
+        theta = projected_start(theta, theta0, typical, report.basis)
+        notes.append(
+            "paper mode: the swarm also searched the directions no norm can see "
+            f"({'; '.join(report.held_directions) or 'none'}); their values were arbitrary and "
+            "are put back at the prior"
+        )
+    elif _same_span(report.basis, solved.basis):
+        pass
+    elif report.rank > solved.rank and _same_span(
+        report.basis @ (report.basis.T @ solved.basis), solved.basis
+    ):
+        # judged at the solution the data show more: the new directions are fitted too (from
+        # the solution, so nothing estimated goes back)
+        lm = solve_lm(problem, theta, typical[:, None] * report.basis)
+        theta, evaluations = lm.theta, evaluations + lm.evaluations
+    else:
+        # some direction estimated from the start is no longer pinned down at the solution:
+        # it stays estimated (it moved; its 1-sigma says how well it is known), so the
+        # status, the covariance and the held part are those of the directions solved for;
+        # a scale factor or bias no longer seen there still makes the verdict (diagnose
+        # rescues such a baseline, a gate does not publish it)
+        if report.verdict == "insufficient":
+            report = replace(solved, verdict=report.verdict, message=report.message)
+        else:
+            report = solved
+    # held means held: a coefficient no estimated coordinate touches is the prior, bitwise
+    theta = np.where(report.estimated, theta, theta0)
     T = typical[:, None] * report.basis
     cov_measurement, chi2_red = covariance(problem, theta, T)
-    # the held directions are not exact: their prior uncertainty moves the estimated ones
-    cls = sensor_class(positions, problem.layout, theta0, MIN_EARTH_RATE_CONTRAST)
-    sigma0, sigma0_source = prior_sigma(
-        problem.layout, theta0, typical, opt.prior.uncertainty if opt.prior else None, cls
-    )
+    # the held coefficients are not exact: their prior uncertainty moves the estimated ones
+    sigma0 = held_sigma.sigma
     cov_held = consider_covariance(problem, theta, typical, report.basis, report.null, sigma0)
     cov = cov_measurement + cov_held
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    if opt.refuse_at_solution:
+        why = unbelievable(
+            problem, theta, theta0, typical, report.estimated, sd,
+            np.sqrt(np.clip(np.diag(cov_measurement), 0, None)),
+            references(opt.latitude_deg, opt.height_m), blind_gyro(problem.models),
+        )  # fmt: skip
+        if why:
+            raise RecalInputError(
+                f"no believable calibration from these positions: {why}; nothing is written "
+                "(give a --prior, or positions that tilt the axes)"
+            )
+    step()
     status_flat = np.where(report.estimated, "estimated", "held")
     notes += _observability_notes(report, problem)
-    moved = held_moved(layout, theta0, theta, report, sd)
-    if moved:
-        notes.append(moved)
     if convergence and not convergence.get("converged"):
         notes.append(f"not converged: {convergence.get('reason')}")
-    if opt.paper and opt.method != "lm":
-        notes.append(
-            "paper mode: the swarm also searched the directions no norm can see "
-            f"({'; '.join(report.held_directions) or 'none'}); their values are arbitrary"
-        )
     if not problem.noise_known:
         notes.append(
             "no *_std or *_sem columns: noise estimated from the fit residuals"
@@ -1075,7 +1100,7 @@ def calibrate(
         uncertainty={n: sd[sl] for n, sl in slices.items()},
         covariance=cov,
         covariance_measurement=cov_measurement,
-        held_uncertainty=HeldUncertainty(cls, sigma0_source, sigma0),
+        held_uncertainty=held_sigma,
         convergence=convergence,
         observability=report,
         problem=problem,

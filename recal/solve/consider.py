@@ -68,13 +68,16 @@ def prior_sigma(
     typical: np.ndarray,
     given: Mapping[str, np.ndarray] | None,
     sensor_class: str,
+    start_sigma: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, str]]:
     """(D,) 1-sigma of every parameter of the prior, and where each term's came from.
 
     ``given``: the prior file's uncertainty by term (NaN where unknown), or None for a prior
     derived from the data. Order: the file's value; for a file without it, the term's typical
     change (what ages between calibrations); for a data-derived prior, the sensor class default
-    (:data:`DEFAULT_PRIOR_SIGMA`), else the typical change.
+    (:data:`DEFAULT_PRIOR_SIGMA`), else the typical change -- or, where ``start_sigma`` (D,) is
+    finite (the data-derived start's own 1-sigma: the ellipsoid fit's, or what the nominal start
+    may be off by; :class:`recal.solve.start.DataPrior`), that when it is larger.
     """
     sigma = np.array(typical, float)
     source: dict[str, str] = {}
@@ -100,6 +103,10 @@ def prior_sigma(
         else:
             sigma[sl] = default
         source[term.name] = f"{sensor_class} default"
+        own = None if start_sigma is None else start_sigma[sl]
+        if own is not None and np.any(own > sigma[sl]):
+            sigma[sl] = np.fmax(sigma[sl], own)
+            source[term.name] += " or the data-derived start's own 1-sigma, the larger"
     return sigma, source
 
 

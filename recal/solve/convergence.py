@@ -50,7 +50,7 @@ class FixedPoint(NamedTuple):
     convergence: dict[str, Any]  # {"converged", "reason", "rounds", ...} (calibrate's JSON)
 
 
-def _projected_start(theta: np.ndarray, theta0: np.ndarray, typical: np.ndarray, basis):
+def projected_start(theta: np.ndarray, theta0: np.ndarray, typical: np.ndarray, basis):
     """theta with its displacement from the prior kept on the observable directions only."""
     d = (theta - theta0) / typical
     return theta0 + typical * (basis @ (basis.T @ d))
@@ -164,7 +164,7 @@ def swarm_convergence(
     T = typical[:, None] * report.basis
     if not T.shape[1]:
         return {"converged": True, "reason": None, "evaluations": 0}
-    lm = solve_lm(problem, _projected_start(theta, theta0, typical, report.basis), T)
+    lm = solve_lm(problem, projected_start(theta, theta0, typical, report.basis), T)
     gap = _distance(problem, lm.theta, theta) / np.sqrt(max(1.0, _chi2(problem, lm.theta, T)))
     per_direction = gap / np.sqrt(T.shape[1])
     out: dict[str, Any] = {"evaluations": lm.evaluations, "lm_gap_sigma": float(gap),

@@ -12,12 +12,24 @@ observable when
   This needs the real noise; before it is known, :func:`analyze` is called with
   ``info_min=0`` and judges structural rank only.
 
-Where coefficient groups trade off, the earlier group wins (:data:`PRIORITY`): scale and bias
-first, then misalignment, then quadratic, then every other effect. Each group's columns are
-projected onto the orthogonal complement of the residual-space span already claimed by earlier
-groups before their SVD. On six faces, for instance, b and K2 enter a norm identically, so the
-bias is estimated and K2 held at the prior. On rich designs the observable span is the same as
-the plain SVD's (the complement of the rotational nulls).
+What is estimated is decided per coefficient, and a coefficient no estimated direction touches
+is "held": it stays exactly at its prior, and its prior uncertainty reaches the estimated ones
+through the consider covariance (:mod:`recal.solve.consider`). Where coefficients trade off, the
+earlier group wins (:data:`PRIORITY`): scale and bias first, then misalignment, then quadratic,
+then every other effect; each group is projected off the residual-space span the earlier ones
+claimed. Scale factors and biases, what a navigator asks about, are held one at a time (a
+backward elimination): while one of them, estimated with the others, is pinned down less well
+than ``info_min``, the one the data improve least on its prior (its prior 1-sigma over the
+data's) is held, as a whole. A hull-fixed gyro's vertical bias is thus estimated and its
+vertical scale factor held (before, both moved along their one visible combination while the
+scale factor was reported "held"). The other groups keep directions, by the SVD of their block
+in :func:`coordinates` (each misalignment pair as its sum, which a norm sees, and difference, to
+first order a rotation of the frame, which only the dot product or the slews see): two triads'
+common rotation is one direction, slews see sums and rotations together, a g-sensitivity matrix
+shows combinations. A coefficient there is "estimated" when an estimated direction touches it
+(partly, ``share`` < 1), else held. On six faces, for instance, b and K2 enter a norm
+identically, so the bias is estimated and K2 held. On rich designs the observable span is the
+plain SVD's (the complement of the rotational nulls).
 
 The Jacobian is taken with misalignment terms at zero (``Term.linearize_at_zero``), where the
 rotational null directions are exact; at E != 0 they are only null to O(E). Cost and memory are
@@ -37,8 +49,6 @@ from recal.solve.problem import Problem
 RCOND = 1e-7
 #: A direction is estimated when the data determine it to within its typical change (s >= 1).
 INFO_MIN = 1.0
-#: A parameter counts as estimated when this share of it lies in the observable subspace.
-ESTIMATED_SHARE = 0.25
 #: Finite-difference step in units of the typical change (the residuals are near-linear).
 FD_STEP = 1e-3
 
@@ -79,8 +89,10 @@ class ObservabilityReport:
 
     ``basis`` (D, k) spans the observable directions in typical-scaled coordinates
     (theta = theta_ref + typical * (basis @ z)); ``null`` (D, D - k) the held ones, with
-    ``held_reasons`` saying why each is held. ``singular_values`` are the priority-ordered ones
-    (each group's after projecting out the earlier groups), sorted. ``redundancy`` = R - rank:
+    ``held_reasons`` saying why each is held. A coefficient whose row of ``basis`` is zero is
+    held (``estimated`` False) and stays exactly at the prior. ``singular_values`` are the
+    priority-ordered ones (each coordinate's or rotation's after projecting out what was
+    estimated before it), sorted. ``redundancy`` = R - rank:
     0 means exactly determined (the residual cannot check the fit). ``noise_decided`` is False
     when only structural rank was judged (noise not known yet or not estimable).
     """
@@ -102,10 +114,11 @@ class ObservabilityReport:
 
     def to_json_dict(self) -> dict:
         criterion = (
-            "typical-scaled whitened Jacobian at the solution with misalignment at zero, groups "
-            "in priority order (scale and bias, misalignment, quadratic, effects; each projected "
-            f"off the earlier groups' span); observable when s >= {INFO_MIN} and "
-            f"s >= {RCOND:g} * s_max"
+            "typical-scaled whitened Jacobian at the solution with misalignment at zero, per "
+            "coordinate (each coefficient; misalignment pairs as sum and frame rotation) in "
+            "priority order (scale and bias, misalignment, quadratic, effects; each projected "
+            f"off what was estimated before it); observable when s >= {INFO_MIN} and "
+            f"s >= {RCOND:g} * s_max; a held coefficient stays exactly at the prior"
         )
         if not self.noise_decided:
             criterion += (
@@ -202,19 +215,9 @@ def rotation_span(layout: ParameterLayout) -> np.ndarray:
     return np.array(cols).T if cols else np.zeros((layout.size, 0))
 
 
-def accel_rotation_span(layout: ParameterLayout) -> np.ndarray:
-    """The accelerometer's columns of :func:`rotation_span`: with slews, the common rotation of
-    both triads is held there (the accelerometer frame is the reference)."""
-    span = rotation_span(layout)
-    names = layout.names
-    accel = np.array([n.startswith("accel.") for n in names])
-    cols = [c for c in span.T if np.all(c[~accel] == 0)] if span.size else []
-    return np.array(cols).T if cols else np.zeros((layout.size, 0))
-
-
 def _split_rotations(held: np.ndarray, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Split an orthonormal held basis (D, h) into its part inside the rotation span and the
-    rest, each varimax-rotated to readable combinations."""
+    """Split an orthonormal held basis (D, h) into its part inside the rotation span (D, r) and
+    the rest, each varimax-rotated to readable combinations."""
     if held.shape[1] == 0 or rotations.shape[1] == 0:
         return held[:, :0], varimax(held)
     u, c, _ = np.linalg.svd(held.T @ rotations, full_matrices=True)
@@ -223,18 +226,32 @@ def _split_rotations(held: np.ndarray, rotations: np.ndarray) -> tuple[np.ndarra
     return varimax(held @ u[:, inside]), varimax(held @ u[:, ~inside])
 
 
+def _coordinate_name(v: np.ndarray, names: list[str]) -> str:
+    """A coordinate of :func:`coordinates` by name: one coefficient, or a misalignment pair's
+    sum ``accel.misalignment.Exz+Eyz`` or difference ``...Exz-Eyz``."""
+    nz = np.flatnonzero(v)
+    if nz.size == 1:
+        return names[int(nz[0])]
+    a, b = (int(i) for i in nz[:2])
+    return f"{names[a]}{'+' if v[a] * v[b] > 0 else '-'}{names[b].rsplit('.', 1)[1]}"
+
+
 def _held_reason(
     earlier: list[str],
     alone: float,
     projected: float,
+    before_group: float,
     structural: float,
     info_min: float,
     no_equations_left: bool,
     n_equations: int,
+    partners: list[str],
 ) -> str:
-    """Why a direction is held (other than a rotation): invisible on these positions, no
-    equations left, traded off against an earlier group, or pinned down less well than its
-    typical change."""
+    """Why a coordinate is held (other than a rotation): invisible on these positions, no
+    equations left, traded off against an earlier group (``before_group``: what is left of it
+    beyond the earlier groups) or against ``partners`` of its own group estimated in its place,
+    or pinned down less well than its typical change."""
+    threshold = max(structural, info_min)
     if alone < structural:
         return "no invariant changes along it on these positions"
     if projected < structural and no_equations_left:
@@ -242,12 +259,75 @@ def _held_reason(
             f"all {n_equations} invariant equations are taken by the directions estimated "
             "before it; more positions would show it"
         )
-    if projected < structural or (projected < info_min <= alone):
-        return f"on these positions it acts like {' and '.join(earlier)}, which are preferred"
+    if alone >= threshold > projected:
+        if earlier and before_group < threshold:
+            return f"on these positions it acts like {' and '.join(earlier)}, which are preferred"
+        if partners:
+            return (
+                f"on these positions it acts like {' and '.join(partners)}, estimated in its "
+                "place (the one whose prior uncertainty shows more in the invariants)"
+            )
+        if earlier:
+            return f"on these positions it acts like {' and '.join(earlier)}, which are preferred"
     return (
         f"the data pin it down only to {1 / max(projected, 1e-300):.2g}x its typical change "
         "(needs 1x or better)"
     )
+
+
+def coordinates(layout: ParameterLayout) -> tuple[np.ndarray, np.ndarray]:
+    """(D, D) orthonormal coordinates in which the coefficients are estimated or held, and (D,)
+    True where a coordinate is a rotation of a frame.
+
+    Every coefficient is its own coordinate, except a triad's misalignment pairs (Exz, Eyz),
+    (Exy, Ezy), (Eyx, Ezx): their sum, which a norm sees, replaces the first and their
+    difference, to first order a rotation of the frame (:func:`rotation_span`), the second.
+    Column k belongs to coefficient k's term, so it has that term's priority group."""
+    D = layout.size
+    C = np.eye(D)
+    rot = np.zeros(D, dtype=bool)
+    names = layout.names
+    h = np.sqrt(0.5)
+    for m in layout.models:
+        for a, b in _ANTISYMMETRIC_PAIRS:
+            ia, ib = f"{m.sensor}.misalignment.{a}", f"{m.sensor}.misalignment.{b}"
+            if ia in names and ib in names:
+                i, j = names.index(ia), names.index(ib)
+                C[i, i] = C[j, i] = C[i, j] = h
+                C[j, j] = -h
+                rot[j] = True
+    return C, rot
+
+
+def _conditional_information(P: np.ndarray, structural: float) -> np.ndarray:
+    """(n,) for the columns of P (R, n), estimated together: 1 / each one's 1-sigma, i.e.
+    1 / sqrt(diag((P^T P)^-1)) in typical units; about 0 for a column the others make
+    dependent (singular values below ``structural`` count as that)."""
+    if not P.shape[1]:
+        return np.zeros(0)
+    _, s, Vt = _group_svd(P)
+    var = np.sum(Vt**2 / np.maximum(s, structural)[:, None] ** 2, axis=0)
+    var = np.where(np.any((s < structural)[:, None] & (np.abs(Vt) > 1e-9), axis=0), np.inf, var)
+    return 1.0 / np.sqrt(var)
+
+
+def _orthonormal_columns(V: np.ndarray) -> np.ndarray:
+    """Orthonormal columns spanning V (n, a) as linear combinations of its columns, so a row of
+    V that is exactly zero stays exactly zero (a Householder QR would fill it in by rounding)."""
+    if not V.shape[1]:
+        return V
+    _, s, Wt = np.linalg.svd(V, full_matrices=False)
+    return (V @ Wt.T) / s
+
+
+#: Coefficients whose gains (prior 1-sigma over the data's) lie within this fraction of the
+#: least are held in a fixed order (scale factors before biases, the layout's last first): a
+#: near tie, such as a hull-fixed accelerometer's vertical scale against its bias without a
+#: prior, is then decided the same way on every data set rather than by noise.
+TIE = 0.1
+#: Entries of an estimated rotation direction below this are finite-difference noise: they are
+#: zeroed, so a coefficient the direction does not touch stays exactly at the prior.
+CLEAN = 1e-6
 
 
 def analyze(
@@ -256,11 +336,16 @@ def analyze(
     typical: np.ndarray,
     rcond: float = RCOND,
     info_min: float = INFO_MIN,
+    weights: np.ndarray | None = None,
 ) -> ObservabilityReport:
     """Observability of every parameter of ``problem`` at ``theta`` (D,).
 
     ``info_min=0`` judges structural rank only (what any noise level would allow): use it
-    before the noise is known, never decide on a provisional sigma.
+    before the noise is known, never decide on a provisional sigma. ``weights`` (D,): the
+    prior's 1-sigma over the typical change per parameter; where scale factors and biases trade
+    off, the one the data improve least on its prior (weight x information) is held (None: all
+    1). They only order the choice; what is observable is decided on the typical-scaled
+    Jacobian.
     """
     layout = problem.layout
     names = layout.names
@@ -271,58 +356,110 @@ def analyze(
     s_max = float(np.linalg.svd(J, compute_uv=False)[0]) if D and R else 0.0
     structural = max(rcond * s_max, 1e-300)
     threshold = max(structural, info_min)
-    rotations = rotation_span(layout)
+    C, rot = coordinates(layout)
+    JC = J @ C
+    w = np.ones(D) if weights is None else np.asarray(weights, float)
+    w_coord = np.sqrt((C**2).T @ np.square(w))
+    prefer = np.array([0 if t.group == "bias" else 1 for t in layout.term_of()])
     # with slews the relative rotation of the triads is seen, their common rotation is not: hold
-    # it in the accelerometer's antisymmetric misalignment (rows of the forced-held columns)
-    # (known rotations, an outside reference, show it: nothing is forced then)
+    # it in the accelerometer's frame rotations (known rotations, an outside reference, show
+    # it: nothing is forced then)
     relative_only = "slew" in problem.invariant_names and "rotation" not in problem.invariant_names
     motion = bool({"slew", "rotation", "closure"} & set(problem.invariant_names))
-    forced = accel_rotation_span(layout) if relative_only else np.zeros((D, 0))
     Q = np.zeros((R, 0))  # orthonormal residual-space span claimed so far
+
+    def off(X: np.ndarray) -> np.ndarray:  # X projected off Q (twice: Gram-Schmidt stability)
+        X = X - Q @ (Q.T @ X)
+        return X - Q @ (Q.T @ X)
+
     basis_cols, null_cols, reasons, s_kept, s_held = [], [], [], [], []
     earlier: list[str] = []
     for label, idx in priority_groups(layout):
-        Jg = J[:, idx]
-        fixed = forced[idx][:, np.any(forced[idx] != 0, axis=0)] if forced.size else forced[idx]
-        if fixed.shape[1]:
-            # search only the complement of the forced-held columns within the group
-            C = np.linalg.svd(fixed, full_matrices=True)[0][:, fixed.shape[1] :]
-            U, s, Vt = _group_svd((Jg - Q @ (Q.T @ Jg)) @ C)
-            Vg = C @ Vt.T
-            held = np.zeros((D, fixed.shape[1]))
-            held[idx] = fixed
-            null_cols.append(held)
-            reasons += [COMMON_ROTATION_REASON] * fixed.shape[1]
-            s_held.append(np.zeros(fixed.shape[1]))  # held by construction
-        else:
-            U, s, Vt = _group_svd(Jg - Q @ (Q.T @ Jg))
-            Vg = Vt.T
-        keep = s >= threshold
-        Q = np.hstack([Q, U[:, keep]])
-        V = np.zeros((D, Vg.shape[1]))
-        V[idx] = Vg
-        basis_cols.append(V[:, keep])
-        s_kept.append(s[keep])
-        rot, other = _split_rotations(V[:, ~keep], rotations)
-        null_cols += [rot, other]
-        s_held.append(s[~keep])
-        for v in rot.T:  # with slews a frame rotation is seen, only perhaps too weakly
-            seen = float(np.linalg.norm(Jg @ v[idx] - Q @ (Q.T @ (Jg @ v[idx]))))
-            reasons.append(
-                _weak_rotation_reason(seen) if motion and seen >= structural else ROTATION_REASON
-            )
+        q0 = Q.shape[1]
+        rk = [int(k) for k in idx if rot[k]]
+        if label != PRIORITY_NAMES[0]:
+            # misalignment, quadratic, effects: directions, by the SVD of the group's
+            # coordinates (two triads' common rotation is one direction, slews see a rotation
+            # and a sum together, a g-sensitivity matrix shows combinations); forced-held
+            # rotations left out
+            forced = [k for k in rk if relative_only and names[k].startswith("accel.")]
+            free = [int(k) for k in idx if k not in forced]
+            for k in forced:
+                null_cols.append(C[:, [k]])
+                reasons.append(COMMON_ROTATION_REASON)
+                s_held.append(0.0)  # held by construction
+            _, s, Vt = _group_svd(off(JC[:, free]))
+            keep = s >= threshold
+            Vk = Vt.T[:, keep].copy()
+            Vk[np.abs(Vk) < CLEAN] = 0.0
+            Vk = _orthonormal_columns(Vk)
+            Vh = np.linalg.svd(Vk, full_matrices=True)[0][:, Vk.shape[1] :] if Vk.shape[1] else (
+                np.eye(len(free)))  # fmt: skip
+            Cf = C[:, free]
+            if Vk.shape[1]:
+                Q = np.hstack([Q, _orthonormal_columns(off(JC[:, free] @ Vk))])
+            basis_cols.append(Cf @ Vk)
+            s_kept.extend(float(v) for v in s[keep])
+            s_held.extend(float(v) for v in s[~keep])
+            turn, other = _split_rotations(Cf @ Vh, C[:, rk])
+            null_cols += [turn, other]
+            for v in turn.T:  # with slews a frame rotation is seen, only perhaps too weakly
+                seen = float(np.linalg.norm(off((J @ v)[:, None])))
+                reasons.append(
+                    _weak_rotation_reason(seen)
+                    if motion and seen >= structural
+                    else ROTATION_REASON
+                )
+            full = Q.shape[1] >= R
+            Qe = Q[:, :q0]
+            for v in other.T:
+                x = J @ v
+                alone = float(np.linalg.norm(x))
+                projected = float(np.linalg.norm(off(x[:, None])))
+                before = float(np.linalg.norm(x - Qe @ (Qe.T @ x)))
+                reasons.append(_held_reason(earlier, alone, projected, before, structural,
+                                            info_min, full, R, []))  # fmt: skip
+            earlier.append(label)
+            continue
+        # scale factors and biases one at a time: while one is pinned down less well than its
+        # typical change (estimated with the others), hold the one the data improve least on
+        # its prior
+        cand = [int(k) for k in idx]
+        dropped: list[tuple[int, float]] = []  # (coordinate, its information when dropped)
+        while cand:
+            info = _conditional_information(off(JC[:, cand]), structural)
+            if info.min() >= threshold:
+                break
+            gain = info * w_coord[cand]
+            near = np.flatnonzero(gain <= gain.min() / (1.0 - TIE))
+            j = int(max(near, key=lambda i: (prefer[cand[i]], cand[i])))
+            dropped.append((cand.pop(j), float(info[j])))
+        basis_cols.append(C[:, cand])
+        if cand:
+            s_kept.extend(float(v) for v in _conditional_information(off(JC[:, cand]), structural))
+            Q = np.hstack([Q, _orthonormal_columns(off(JC[:, cand]))])
         full = Q.shape[1] >= R  # every equation already taken
-        for v in other.T:
-            alone = float(np.linalg.norm(Jg @ v[idx]))
-            projected = float(np.linalg.norm(Jg @ v[idx] - Q @ (Q.T @ (Jg @ v[idx]))))
-            reasons.append(_held_reason(earlier, alone, projected, structural, info_min, full, R))
+        Qe = Q[:, :q0]
+        for k, info_k in dropped:
+            x = JC[:, k]
+            alone = float(np.linalg.norm(x))
+            before = float(np.linalg.norm(x - Qe @ (Qe.T @ x)))
+            cos = [abs(float(x @ JC[:, c])) / max(alone * np.linalg.norm(JC[:, c]), 1e-300)
+                   for c in cand]  # fmt: skip
+            partners = [_coordinate_name(C[:, c], names) for c, v in zip(cand, cos, strict=True)
+                        if v >= 0.5 * max(cos)] if cos else []  # fmt: skip
+            null_cols.append(C[:, [k]])
+            s_held.append(info_k)
+            reasons.append(_held_reason(earlier, alone, info_k, before, structural, info_min,
+                                        full, R, partners))  # fmt: skip
         earlier.append(label)
     basis = np.hstack(basis_cols) if basis_cols else np.zeros((D, 0))
     null = np.hstack(null_cols) if null_cols else np.zeros((D, 0))
-    kept = np.concatenate(s_kept) if s_kept else np.zeros(0)
-    s_all = np.sort(np.concatenate([kept, *s_held]))[::-1] if D else np.zeros(0)
+    kept = np.array(s_kept)
+    s_all = np.sort(np.concatenate([kept, np.array(s_held)]))[::-1] if D else np.zeros(0)
     share = np.sum(basis**2, axis=1)
-    estimated = share >= ESTIMATED_SHARE
+    # a coefficient no estimated coordinate touches stays exactly at the prior: "held"
+    estimated = np.any(basis != 0.0, axis=1)
     held = [_label(null[:, j], names) for j in range(null.shape[1])]
     rank = basis.shape[1]
     cond = float(s_max / kept.min()) if rank else float("inf")

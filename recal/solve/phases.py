@@ -84,6 +84,10 @@ def whitened_phase(
     _, s, Wt = np.linalg.svd(J, full_matrices=False)
     s = np.maximum(s, 1e-12 * s.max())
     transform = T @ Wt.T / s
+    # each direction's sign fixed (largest entry in typical units positive), so the search
+    # does not depend on how the observable span happens to be spanned
+    lead = np.argmax(np.abs(transform / typical[:, None]), axis=0)
+    transform *= np.sign(transform[lead, np.arange(transform.shape[1])])
     visual = visual_sigmas * np.maximum(s, 1.0)
     if objective_now is not None:
         radius = 1.5 * np.sqrt(max(problem.M - 1, 1) * np.asarray(objective_now, float))

@@ -360,8 +360,21 @@ class Problem:
         f2 = np.moveaxis(f[:, :, self.slews.second], 0, -1)
         return slew_residuals(
             self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate,
-            self._zero_rate,
+            self._zero_rate, self._same_gyro(theta),
         )  # fmt: skip
+
+    def _same_gyro(self, theta: np.ndarray) -> np.ndarray | None:
+        """For each row of theta (P, D), the first row with the same gyro parameters, or None
+        when all differ: the slews are integrated once per distinct gyro (a Jacobian along the
+        accelerometer's coefficients, a swarm's accelerometer phase, needs no integration)."""
+        theta = np.atleast_2d(theta)
+        if theta.shape[0] < 2:
+            return None
+        g = np.ascontiguousarray(theta[:, self._slices["gyro"]])
+        _, first, inverse = np.unique(g, axis=0, return_index=True, return_inverse=True)
+        if first.size == theta.shape[0]:
+            return None
+        return first[inverse.reshape(-1)]
 
     @cached_property
     def _zero_rate(self) -> np.ndarray | None:

@@ -310,8 +310,14 @@ def _run_calibration(args: argparse.Namespace) -> tuple[CalibrationResult, Calib
 
     positions = load_positions(args.positions)
     options = options_from_args(args, positions)
-    if options.method == "lm":
-        result = calibrate(positions, options)
+    if options.method == "lm":  # a step bar: thousands of windows with slews take seconds
+        from recal.solve.calibrate import LM_STEPS
+
+        bar = progress_bar(len(LM_STEPS), "LM", unit="step")
+        try:
+            result = calibrate(positions, options, progress=bar.update)
+        finally:
+            bar.close()
     else:
         bar = progress_bar(options.mc_runs, f"MCS-{options.method.upper()}")
         done = [0.0]
@@ -330,13 +336,17 @@ def _run_calibration(args: argparse.Namespace) -> tuple[CalibrationResult, Calib
 
 
 def run(args: argparse.Namespace) -> int:
-    from recal.diagnose.effects import effects_check
     from service.cli.common import atomic_write, print_json
 
     result, options = _run_calibration(args)
     # effects that move the core coefficients beyond diagnose's trust rule: said in the notes,
-    # the JSON (effects_check) and the coefficients file's metadata (unconfirmed_effects)
-    check = effects_check(result, options) if options.effects else None
+    # the JSON (effects_check) and the coefficients file's metadata (unconfirmed_effects);
+    # imported only then (scipy.stats: seconds on a busy machine)
+    check = None
+    if options.effects:
+        from recal.diagnose.effects import effects_check
+
+        check = effects_check(result, options)
     if check and not check["trustworthy"]:
         result.notes.append(check["warning"])
         result.coefficients.metadata["unconfirmed_effects"] = check["effects"]
