@@ -69,7 +69,8 @@ def _cost(problem: Problem, theta: np.ndarray) -> float:
 
 def _settle(problem, theta, theta0, typical, basis, rereference: int = REREFERENCE):
     """LM rounds until a round moves the estimate by < SETTLED_SIGMA; the first ``rereference``
-    rounds re-reference the noise at the estimate, later ones keep the problem fixed.
+    rounds re-reference the noise at the estimate, later ones keep the problem fixed (and reuse
+    the slews' last linearisation, also returned).
 
     The observable directions stay those of the first solve (``basis``): judged again at every
     estimate they can flip between rounds, and a flipped direction would lose its estimate.
@@ -77,21 +78,23 @@ def _settle(problem, theta, theta0, typical, basis, rereference: int = REREFEREN
     propagated noise follows the estimate and the rounds need not settle."""
     evaluations, rounds, moved = 0, 0, np.inf
     T = typical[:, None] * basis
+    linearisation = None  # the slews' last Jacobian, while the problem stays the same
     while rounds < MAX_ROUNDS and T.shape[1]:
         if problem.noise_known and rounds < rereference:
             moved_to = problem.at(theta)
             if _comparable(problem, moved_to):
-                problem = moved_to
+                problem, linearisation = moved_to, None
             else:  # a degenerate estimate (scale running away): keep the noise where it was
                 rereference = rounds
         rounds += 1
-        lm = solve_lm(problem, theta, T)
+        lm = solve_lm(problem, theta, T, linearisation=linearisation)
+        linearisation = lm.linearisation
         evaluations += lm.evaluations
         moved = _distance(problem, lm.theta, theta) / np.sqrt(max(1.0, _chi2(problem, lm.theta, T)))
         theta = lm.theta
         if moved < SETTLED_SIGMA and rounds > min(rereference, 1):
             break
-    return problem, theta, evaluations, rounds, moved
+    return problem, theta, evaluations, rounds, moved, linearisation
 
 
 def _comparable(a: Problem, b: Problem) -> bool:
@@ -121,7 +124,9 @@ def fixed_point(
     """Iterate the fit at ``theta`` to a fixed point and check it from the prior (module doc).
 
     ``basis`` (D, k): the observable directions the fit solved for (typical-scaled)."""
-    problem, theta, evaluations, rounds, moved = _settle(problem, theta, theta0, typical, basis)
+    problem, theta, evaluations, rounds, moved, linearisation = _settle(
+        problem, theta, theta0, typical, basis
+    )
     out: dict[str, Any] = {"rounds": rounds, "last_step_sigma": float(moved)}
     if rounds and moved >= SETTLED_SIGMA:
         out.update(converged=False, reason=(
@@ -130,7 +135,8 @@ def fixed_point(
         return FixedPoint(problem, theta, evaluations, out)
     # start-independence: from the prior on the settled problem
     T = typical[:, None] * basis
-    lm = solve_lm(problem, theta0, T)
+    # (from the settled answer's linearisation: near it, the restart needs no new one)
+    lm = solve_lm(problem, theta0, T, linearisation=linearisation)
     evaluations += lm.evaluations
     gap = _distance(problem, lm.theta, theta) / np.sqrt(max(1.0, _chi2(problem, theta, T)))
     out["restart_gap_sigma"] = float(gap)
@@ -140,7 +146,7 @@ def fixed_point(
     c_settled, c_restart = _cost(problem, theta), _cost(problem, lm.theta)
     if c_restart < c_settled:
         # the restart found a lower minimum: settle it and report the disagreement
-        problem, theta, more, _, _ = _settle(problem, lm.theta, theta0, typical, basis, 0)
+        problem, theta, more, *_ = _settle(problem, lm.theta, theta0, typical, basis, 0)
         evaluations += more
     _, chi2 = covariance(problem, theta, T)
     out.update(converged=False, reason=(

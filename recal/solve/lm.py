@@ -18,6 +18,9 @@ class LMResult:
     evaluations: int  # residual vectors evaluated (Jacobian columns included)
     success: bool
     message: str
+    #: with motion invariants, the last linearisation: (theta there, whitened Jacobian (R, k)
+    #: along the transform); pass it to the next solve_lm on the same problem and directions
+    linearisation: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def to_theta(theta_ref: np.ndarray, transform: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -33,12 +36,16 @@ _MOTION = ("slew", "rotation", "closure")
 #: re-linearises until the estimate moves by less than this (sigma: the norm of the whitened
 #: residual change) from that point.
 RELINEARISE_SIGMA = 0.05
-#: Linearisation points at most (each costs 2 k + 1 exact evaluations; 2-3 usually do).
+#: Linearisation points at most (each costs k + 1 exact evaluations; 1-3 usually do).
 MAX_LINEARISATIONS = 8
 
 
 def solve_lm(
-    problem: Problem, theta_ref: np.ndarray, transform: np.ndarray, max_nfev: int = 200
+    problem: Problem,
+    theta_ref: np.ndarray,
+    transform: np.ndarray,
+    max_nfev: int = 200,
+    linearisation: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LMResult:
     """Minimise the whitened residuals over theta = theta_ref + transform @ z.
 
@@ -50,6 +57,9 @@ def solve_lm(
     LM is re-run from its answer with the motion Jacobian taken there until the answer moves by
     less than :data:`RELINEARISE_SIGMA`. The minimum is the exact one (the last Jacobian is the
     one at it), at a fraction of the integrations: thousands of slews stay fast.
+    ``linearisation``: a previous :attr:`LMResult.linearisation` on this problem and these
+    directions, used for the first round (a restart from the prior near a settled answer then
+    needs no new one).
     """
     k = transform.shape[1]
     count = [0]
@@ -74,9 +84,19 @@ def solve_lm(
     n_static = static.n_residuals  # the motion invariants come last (Problem.invariant_names)
     z = np.zeros(k)
     res = None
+    given = None
+    if linearisation is not None and linearisation[1].shape == (problem.n_residuals, k):
+        at, J_given = linearisation
+        z_at = np.linalg.lstsq(transform, at - theta_ref, rcond=None)[0]
+        if np.allclose(to_theta(theta_ref, transform, z_at)[0], at, rtol=1e-12, atol=0):
+            given = (z_at, J_given)  # (it lies on these directions)
     for _ in range(MAX_LINEARISATIONS):
-        J_at = _forward_jacobian(problem, to_theta(theta_ref, transform, z)[0], transform.T)
-        count[0] += k + 1
+        if given is not None:
+            (z_at, J_at), given = given, None
+        else:
+            z_at = z
+            J_at = _forward_jacobian(problem, to_theta(theta_ref, transform, z)[0], transform.T)
+            count[0] += k + 1
         J_motion = J_at[n_static:]
 
         def jac(zz: np.ndarray, J_motion=J_motion) -> np.ndarray:
@@ -85,13 +105,14 @@ def solve_lm(
             return np.vstack([J_static, J_motion])
 
         res = least_squares(fun, z, jac=jac, max_nfev=max_nfev, **options)
-        moved = float(np.linalg.norm(J_at @ (res.x - z)))
+        moved = float(np.linalg.norm(J_at @ (res.x - z_at)))
         z = res.x
         if moved < RELINEARISE_SIGMA:
             break
     assert res is not None
     theta = to_theta(theta_ref, transform, z)[0]
-    return LMResult(theta, float(res.cost), count[0], bool(res.success), str(res.message))
+    last = (to_theta(theta_ref, transform, z_at)[0], J_at)
+    return LMResult(theta, float(res.cost), count[0], bool(res.success), str(res.message), last)
 
 
 def _forward_jacobian(problem: Problem, theta: np.ndarray, directions: np.ndarray) -> np.ndarray:
