@@ -285,8 +285,11 @@ class SchedulerSettings(Section):
     drift_false_alarm_days: float = Field(
         30.0, gt=0, description="'drift' trigger: one false alarm per this many days..."
     )
-    windows_per_day: float = Field(
-        24.0, gt=0, description="... at this expected rate of static windows"
+    windows_per_day: float | None = Field(
+        None,
+        gt=0,
+        description="... at this rate of static windows; unset: measured from the stored "
+        "windows' device time (24 a day until a day of them is stored)",
     )
 
     sensor: Literal["gyro", "accel", "both"] = Field("both", description="triads to calibrate")

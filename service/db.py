@@ -512,6 +512,20 @@ class Store:
         with self._tx() as s:
             return int(s.scalar(query) or 0)
 
+    def window_rate(self) -> tuple[int, float]:
+        """Stored windows and the device time they were found in, s: per session, from the
+        first window's start to the last one's end (sessions restart the device clock)."""
+        query = select(
+            func.count(PositionRow.id), func.min(PositionRow.start_s), func.max(PositionRow.end_s)
+        ).group_by(PositionRow.session_id)
+        count, span = 0, 0.0
+        with self._tx() as s:
+            for n, first, last in s.execute(query):
+                count += int(n or 0)
+                if first is not None and last is not None and last > first:
+                    span += float(last) - float(first)
+        return count, span
+
     # ---- calibrations -------------------------------------------------------------------
     def add_calibration(self, record: CalibrationRecord) -> int:
         """Store a calibration (accepted or not); returns its version number."""

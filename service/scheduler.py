@@ -87,6 +87,10 @@ class Scheduler:
         self.last_evaluation: Evaluation | None = None
         self._ending_in: int | None = None  # thread handling a job's end (it may chain one)
         self.last_reason: dict[str, Any] | None = None  # why the last job started
+        # CPU of the trigger evaluations, s (per window, not per frame: health and benchmarks
+        # keep it apart from the stream's per-frame cost)
+        self.evaluation_cpu_s = 0.0
+        self.evaluations = 0
 
     # -- triggers -------------------------------------------------------------------------
     def notify(self, ids: list[int]) -> None:
@@ -119,6 +123,14 @@ class Scheduler:
         """Look at the stored windows and start a job when a configured trigger says so;
         returns the job number (the policy thread calls this after new windows; the end of a
         job, ``chained``, calls it while that job still counts as running)."""
+        c0 = time.thread_time()
+        try:
+            return self._evaluate(chained)
+        finally:
+            self.evaluation_cpu_s += time.thread_time() - c0
+            self.evaluations += 1
+
+    def _evaluate(self, chained: bool) -> int | None:
         s = self._settings.scheduler
         if (self.busy and not chained) or self._stopping:
             return None  # the job's end looks again
@@ -336,6 +348,8 @@ class Scheduler:
             "policy_alive": self._policy_alive(),
             "triggers": list(self._settings.scheduler.trigger),
             "last_reason": self.last_reason,
+            "evaluations": self.evaluations,
+            "evaluation_cpu_s": round(self.evaluation_cpu_s, 3),
             "last_evaluation": None
             if ev is None
             else {

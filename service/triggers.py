@@ -136,7 +136,7 @@ def evaluate(
     may_rerun = not rerun_wait or new_since_job >= s.min_new_positions
     if "drift" in s.trigger:
         try:
-            out.drift = _drift(positions, ids, coefficients, covariance, settings)
+            out.drift = _drift(store, positions, ids, coefficients, covariance, settings)
         except (RecalInputError, ValueError, np.linalg.LinAlgError) as exc:
             out.problems.append(f"drift test: {exc}")
         else:
@@ -164,7 +164,30 @@ def evaluate(
     return out
 
 
+#: Device time of stored windows before their measured rate sets the drift threshold, s.
+RATE_MIN_SPAN_S = 86400.0
+#: The rate assumed until then: one window an hour.
+DEFAULT_WINDOWS_PER_DAY = 24.0
+
+
+def windows_per_day(store: Any, settings: Settings) -> tuple[float, bool]:
+    """The rate of static windows the drift threshold is set at, and whether it was measured.
+
+    The false-alarm rate is configured in days, the test runs per window: a hull detector stores
+    several windows an hour, a still detector in port one a day. Unless ``windows_per_day`` is
+    set, the rate is measured from the stored windows' device time (a day of it at least; before
+    that one an hour is assumed)."""
+    configured = settings.scheduler.windows_per_day
+    if configured is not None:
+        return float(configured), False
+    count, span = store.window_rate()
+    if span < RATE_MIN_SPAN_S or count < 2:
+        return DEFAULT_WINDOWS_PER_DAY, False
+    return count / span * 86400.0, True
+
+
 def _drift(
+    store: Any,
     positions: Positions,
     ids: list[int],
     coefficients: CoefficientSet,
@@ -177,7 +200,8 @@ def _drift(
     s = settings.scheduler
     inputs = drift_inputs(positions, coefficients, covariance, settings.site.latitude_deg,
                           settings.site.height_m)  # fmt: skip
-    result = drift_test(inputs, DriftConfig.per_days(s.drift_false_alarm_days, s.windows_per_day))
+    per_day, measured = windows_per_day(store, settings)
+    result = drift_test(inputs, DriftConfig.per_days(s.drift_false_alarm_days, per_day))
     last = len(ids) - 1
     alarm = result.alarm_window
     change = int(result.change_window[last])
@@ -193,6 +217,8 @@ def _drift(
         "alarm_id": None if alarm is None else ids[alarm],
         "change_id": ids[change],
         "suspect": result.suspects[0]["description"] if result.suspects else None,
+        "windows_per_day": round(per_day, 2),
+        "windows_per_day_measured": measured,
         "notes": list(inputs.notes),
         "_since_id": ids[change - 1] if change > 0 else ids[0] - 1,
     }

@@ -15,12 +15,13 @@ time scale of the waves and by physics:
    the turn window: a slow turn's first seconds move the average too little to be seen), cut
    into pieces of at most ``max_window_s``, and at least ``min_window_s`` long, are the
    candidate windows.
-2. **The window's rate** is the least-squares slope of the attitude the gyro integrates (the
-   rotation vector, coning-corrected to second order), not the mean rate. For periodic motion
-   of angular frequency w and angle A, a plain mean keeps up to 2 A / T of the net attitude change
-   over T (12 deg/h at 1 degree of roll over 10 minutes: as large as Earth's rate); the slope
-   keeps about 12 A / (w T^2) (0.15 deg/h). The slope is a parabolic-weighted mean of the
-   rate, expressed in the window's mean attitude.
+2. **The window's rate** is the parabolic-weighted mean of the body rate, which is the
+   least-squares slope of the attitude the gyro integrates, not the plain mean. For periodic
+   motion of angular frequency w and angle A, a plain mean keeps up to 2 A / T of the net
+   attitude change over T (12 deg/h at 1 degree of roll over 10 minutes: as large as Earth's
+   rate); the slope keeps about 12 A / (w T^2) (0.15 deg/h). It lives in the window's weighted
+   mean attitude, the frame of the specific force's mean below, and is corrected for the same
+   rocking loss (Earth's rate, like gravity, is fixed in space).
 3. **The window's specific force** is the same parabolic-weighted mean of the accelerometer
    outputs, corrected for the second-order loss of a rocking mean (its norm is low by g A^2 / 4,
    76 ug at 1 degree): the gyro's own attitude oscillation gives that correction.
@@ -55,6 +56,9 @@ LONGEST_WAVE_S = 20.0
 #: The motion's residual in a window's slope is 12 A_rms / (w T^2) averaged over the phase at
 #: which the window starts; its largest value over the phase is sqrt(2) times that.
 _PHASE = math.sqrt(2.0)
+#: The share of the coning correction a window's rate sigma carries (what the second-order
+#: correction leaves was 1-1.4 % of it on simulated seas of 1 and 3 degrees).
+CONING_RESIDUAL = 0.03
 
 
 @dataclass(frozen=True)
@@ -215,28 +219,48 @@ def estimate_window(
     dt = float(np.median(np.diff(t))) if n > 1 else 1.0
     T = n * dt
     w = _parabolic_kernel(n)  # weights of the OLS slope of the integral, sum 1
-    # rotation vector from the window's start, rad (coning-corrected to second order)
+    # the attitude oscillation about the window's mean attitude, rad: the rotation vector that
+    # the oscillation's own rate integrates (mid-sample, coning-corrected to second order, so
+    # roll and pitch out of phase do not make its vertical part wander), less its least-squares
+    # line, about its weighted mean. The oscillation's own rate is the rate less its weighted
+    # mean and less the turning of Earth's rate in the rocking body (-delta x w; the rocking
+    # loss M below counts that part): left in, its integral crossed with the roll rate doubles
+    # the second-order terms.
     rate = ref.rate_dph(gyro) * _DPH_TO_RAD_S
-    dth = rate * dt
-    theta = np.cumsum(dth, axis=0)
-    prev = theta - dth
-    phi_mid = prev + 0.5 * dth + 0.5 * np.cumsum(np.cross(prev, dth), axis=0)
-    # slope by the weights (the rate) plus the coning term's slope
-    coning_rate = 0.5 * np.cross(prev + 0.5 * dth, rate)  # d/dt of the cross term, rad/s
-    slope = w @ (rate + coning_rate)
+    w_first = w @ rate
     tc = (np.arange(n) + 0.5) * dt
-    intercept = phi_mid.mean(axis=0) - slope * tc.mean()
-    delta = phi_mid - intercept - np.outer(tc, slope)  # the oscillation about the mean attitude
-    # in the mean attitude frame: the window's start frame is off it by -intercept
-    slope_m = slope + np.cross(intercept, slope)
-    gyro_mean = (slope_m / _DPH_TO_RAD_S + ref.gyro_bias_dph) * ref.gyro_scale
-    # specific force: the weighted mean, then the rocking loss f_mean = (I + (S - tr S I) / 2) f0
-    f = ref.force_g(accel)
-    f_bar = w @ f
+
+    def attitude(r: np.ndarray, coned: bool) -> np.ndarray:
+        d = (np.cumsum(r, axis=0) - 0.5 * r) * dt
+        if coned:
+            d += 0.5 * np.cumsum(np.cross(d, r), axis=0) * dt
+        line = np.polyfit(tc, d, 1)  # (2, 3): slope, intercept
+        d -= line[1] + np.outer(tc, line[0])
+        return d - w @ d
+
+    rate_res = rate - w_first
+    rate_res = rate_res + np.cross(attitude(rate_res, False), w_first)  # rad/s
+    delta = attitude(rate_res, True)
+    # the rocking loss of a mean over an oscillating attitude: mean(C^T v) = M v for any vector
+    # fixed in space (Earth's rate, gravity), v in the mean attitude, M = I + (S - tr S I) / 2
     S = (delta * w[:, None]).T @ delta
     M = np.eye(3) + 0.5 * (S - np.trace(S) * np.eye(3))
+    # rate: the parabolic-weighted mean of the body rate (the OLS slope of its integral: it keeps
+    # 12 A / (w T^2) of a wave), less the rate that roll and pitch out of phase rectify (coning:
+    # the body turns about the third axis on average while its attitude only oscillates,
+    # mean rate = -1/2 mean(delta x delta'); 0.4 deg/h at 1 degree of roll, 3.6 at 3), then the
+    # rocking loss. The rate and the specific force's mean share one frame, the weighted mean
+    # attitude, so their dot product is right to first order in the tilt. (The slope of the
+    # rotation vector taken to that frame instead put the rate half a tilt off the force's
+    # frame: a dot-product error of up to 0.13 deg/h g at 1 degree of roll, which no sem carried.)
+    coning = 0.5 * (w @ np.cross(delta, rate_res))
+    w0 = np.linalg.solve(M, w_first + coning)
+    gyro_mean = (w0 / _DPH_TO_RAD_S + ref.gyro_bias_dph) * ref.gyro_scale
+    # specific force: the weighted mean, then the same rocking loss
+    f = ref.force_g(accel)
+    f_bar = w @ f
     f0 = np.linalg.solve(M, f_bar)
-    f0, lever_sem = _lever_arm(f, f0, delta, rate + coning_rate - slope, dt, cfg)
+    f0, lever_sem = _lever_arm(f, f0, delta, rate_res, dt, cfg)
     accel_mean = (f0 + ref.accel_bias_g) * ref.accel_scale
     # white noise through the weights, from second differences (var(d2) = 6 sigma^2)
     sw2 = float(w @ w)
@@ -254,10 +278,12 @@ def estimate_window(
     # at the longest wave period, so the slow part is not judged at the waves' frequency.
     slowest = 2.0 * math.pi / T  # nothing slower than the window shows
     gyro_motion = _band_residual(delta, dt, T, slowest, power=1) / _DPH_TO_RAD_S
+    # what the second-order coning term leaves: about 1.2 % of it on simulated seas of 1 and 3
+    # degrees (noise free); carried at CONING_RESIDUAL of it
+    gyro_motion = np.hypot(gyro_motion, CONING_RESIDUAL * np.abs(coning) / _DPH_TO_RAD_S)
     gyro_motion *= np.abs(ref.gyro_scale)
     a_all = np.sqrt(np.mean(delta**2, axis=0))
     tilt = float(np.sqrt(np.sum(a_all**2)))
-    rate_res = rate + coning_rate - slope
     r_rms = np.sqrt(np.mean(rate_res**2, axis=0))
     om = float(np.sqrt(np.sum(r_rms**2)) / tilt) if tilt > 0 else slowest
     om = max(om, slowest)

@@ -134,6 +134,16 @@ class HeldUncertainty(NamedTuple):
     def to_json_dict(self) -> dict[str, Any]:
         return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
 
+    def bar(self, layout: ParameterLayout, typical: np.ndarray) -> np.ndarray:
+        """(D,) the observability bar (recal.solve.observability.analyze ``bar``): a prior
+        file's 1-sigma over the typical change where it is looser, else 1. Class defaults and a
+        data-derived start's own 1-sigma are guesses, not knowledge: they never lower it."""
+        out = np.ones(len(typical))
+        for name, sl in layout.term_slices().items():
+            if self.source.get(name, "").startswith("prior file"):
+                out[sl] = np.maximum(self.sigma[sl] / typical[sl], 1.0)
+        return out
+
 
 @dataclass
 class CalibrationResult:
@@ -664,12 +674,16 @@ class SlewExcess(NamedTuple):
 
 
 def slew_excess(
-    problem: Problem, theta0: np.ndarray, typical: np.ndarray, weights: np.ndarray | None = None
+    problem: Problem,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    weights: np.ndarray | None = None,
+    bar: np.ndarray | None = None,
 ) -> SlewExcess:
     """(excess, chi2_red of the slews before it): the unmodelled error per slew residual, rad,
     that makes the slews' chi2_red 1 at the fit, by the method of moments, iterated with the fit
     (3 rounds at most), or 0 when the slews fit to their window noise within
-    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors. ``weights``: as for
+    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors. ``weights``, ``bar``: as for
     :func:`recal.solve.observability.analyze`.
 
     Why: on a real hand-turned MEMS session (imucal's Ferraris example) the face flips misfit by
@@ -684,7 +698,7 @@ def slew_excess(
     prob = problem
     # the directions the window noise lets the slews see, kept through the rounds (judged
     # again on the inflated noise, fewer are seen, the misfit grows and the excess runs away)
-    report = analyze(prob, theta0, typical, weights=weights)
+    report = analyze(prob, theta0, typical, weights=weights, bar=bar)
     T = typical[:, None] * report.basis
     for _ in range(4):
         lm = solve_lm(prob, theta0, T)
@@ -842,7 +856,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
                 f"x 360 deg about the vertical): each taken as exactly whole turns, heading "
                 f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (--turn-closure)"
             )
-        fit = slew_excess(problem, theta0, typical, held.sigma / typical)
+        fit = slew_excess(problem, theta0, typical, held.sigma / typical, held.bar(layout, typical))
         excess, chi2_slews = fit.excess, fit.chi2_first
         if excess == 0 and fit.report is not None and fit.theta is not None:
             first = (fit.report, fit.theta)
@@ -903,8 +917,9 @@ def check_design(
     su = _set_up(positions, opt)
     info_min = INFO_MIN if su.problem.noise_known else 0.0
     weights = su.held.sigma / su.typical
+    bar = su.held.bar(su.layout, su.typical)
     report = _decided(analyze(su.problem, su.theta0, su.typical, info_min=info_min,
-                              weights=weights))  # fmt: skip
+                              weights=weights, bar=bar))  # fmt: skip
     if not partial_ok and report.verdict == "insufficient":
         raise RecalInputError(f"only a partial calibration: {report.message}")
 
@@ -938,21 +953,23 @@ def calibrate(
     sensors, notes, layout, theta0, prior_source, problem, typical, held_sigma, _ = su
     step()
     weights = held_sigma.sigma / typical
+    bar = held_sigma.bar(layout, typical)
     evaluations = 0
     theta_fit: np.ndarray | None = None  # an LM optimum on report.basis, when one exists
     if problem.noise_known and su.first is not None:
         report, theta_fit = _decided(su.first[0]), su.first[1]  # set-up's fit (slews)
     elif problem.noise_known:
-        report = _decided(analyze(problem, theta0, typical, weights=weights))
+        report = _decided(analyze(problem, theta0, typical, weights=weights, bar=bar))
     else:
         # Noise first: the provisional sigma is no noise information, so judge structural rank
         # only, fit, estimate the noise from the residuals, and decide on that.
-        structural = _decided(analyze(problem, theta0, typical, info_min=0.0, weights=weights))
+        structural = _decided(analyze(problem, theta0, typical, info_min=0.0, weights=weights,
+                                      bar=bar))  # fmt: skip
         if structural.redundancy > 0:
             lm = solve_lm(problem, theta0, typical[:, None] * structural.basis)
             evaluations += lm.evaluations
             problem = problem.with_sigma_from_residuals(lm.theta, structural.rank)
-            report = _decided(analyze(problem, lm.theta, typical, weights=weights),
+            report = _decided(analyze(problem, lm.theta, typical, weights=weights, bar=bar),
                               "on the estimated noise")  # fmt: skip
             if len(problem.invariant_names) == 1 and _same_span(report.basis, structural.basis):
                 theta_fit = lm.theta  # a uniform sigma rescales chi2 but cannot move the optimum
@@ -1012,7 +1029,7 @@ def calibrate(
         evaluations += convergence.pop("evaluations", 0)
     step()
     solved = report
-    report = analyze(problem, theta, typical, info_min=info_min, weights=weights)
+    report = analyze(problem, theta, typical, info_min=info_min, weights=weights, bar=bar)
     if opt.refuse_at_solution:
         report = _decided(report, "at the solution")
     if opt.paper and opt.method != "lm":

@@ -8,7 +8,9 @@ parameter scaled by its typical change (:attr:`recal.model.terms.Term.typical`),
 observable when
 
 * its singular value is above ``rcond`` x the largest (not structurally null), and
-* it is at least ``info_min``: the data pin the direction down better than its typical change.
+* it is at least ``info_min``: the data pin the direction down better than its typical change
+  (for a scale factor or bias: better than the larger of its typical change and a stated
+  prior's 1-sigma, ``bar``; data that beat a loose prior improve on holding it).
   This needs the real noise; before it is known, :func:`analyze` is called with
   ``info_min=0`` and judges structural rank only.
 
@@ -337,6 +339,7 @@ def analyze(
     rcond: float = RCOND,
     info_min: float = INFO_MIN,
     weights: np.ndarray | None = None,
+    bar: np.ndarray | None = None,
 ) -> ObservabilityReport:
     """Observability of every parameter of ``problem`` at ``theta`` (D,).
 
@@ -344,8 +347,10 @@ def analyze(
     before the noise is known, never decide on a provisional sigma. ``weights`` (D,): the
     prior's 1-sigma over the typical change per parameter; where scale factors and biases trade
     off, the one the data improve least on its prior (weight x information) is held (None: all
-    1). They only order the choice; what is observable is decided on the typical-scaled
-    Jacobian.
+    1). ``bar`` (D,), at least 1: a stated prior's 1-sigma over the typical change where it is
+    looser (None: all 1); a scale factor or bias the data pin down better than that prior is
+    estimated even when they do not reach its typical change (holding it would leave more).
+    Structural rank and the other groups are decided on the typical-scaled Jacobian alone.
     """
     layout = problem.layout
     names = layout.names
@@ -360,6 +365,8 @@ def analyze(
     JC = J @ C
     w = np.ones(D) if weights is None else np.asarray(weights, float)
     w_coord = np.sqrt((C**2).T @ np.square(w))
+    b = np.ones(D) if bar is None else np.maximum(np.asarray(bar, float), 1.0)
+    bar_coord = np.sqrt((C**2).T @ np.square(b))
     prefer = np.array([0 if t.group == "bias" else 1 for t in layout.term_of()])
     # with slews the relative rotation of the triads is seen, their common rotation is not: hold
     # it in the accelerometer's frame rotations (known rotations, an outside reference, show
@@ -428,7 +435,9 @@ def analyze(
         dropped: list[tuple[int, float]] = []  # (coordinate, its information when dropped)
         while cand:
             info = _conditional_information(off(JC[:, cand]), structural)
-            if info.min() >= threshold:
+            # where a stated prior is looser than the typical change, data that beat the prior
+            # improve on holding it: the bar is the larger of the two (never below structural)
+            if np.all(info >= structural) and np.all(info * bar_coord[cand] >= threshold):
                 break
             gain = info * w_coord[cand]
             near = np.flatnonzero(gain <= gain.min() / (1.0 - TIE))

@@ -261,3 +261,23 @@ def test_in_memory_sqlite(make_record: Callable[..., CalibrationRecord]) -> None
     assert current is not None and current.version == version
     assert current.created_at.tzinfo == UTC
     st.close()
+
+
+def test_window_rate_counts_device_time_per_session(store: Store) -> None:
+    """Each session restarts the device clock: the rate is windows over the sum of the spans
+    from each session's first window to its last (here 5 + 3 windows over 20 h + 10 h)."""
+    from service.config import SchedulerSettings, Settings
+    from service.triggers import DEFAULT_WINDOWS_PER_DAY, windows_per_day
+
+    settings = Settings(database_url="sqlite://", scheduler=SchedulerSettings())
+    assert windows_per_day(store, settings) == (DEFAULT_WINDOWS_PER_DAY, False)  # nothing yet
+    for name, n, hours in (("a", 5, 20.0), ("b", 3, 10.0)):
+        cols = simulated(n, seed=n)
+        cols["start_s"] = np.linspace(0.0, hours * 3600.0 - 600.0, n)
+        cols["end_s"] = cols["start_s"] + 600.0
+        store.add_positions(store.add_session(name), cols)
+    assert store.window_rate() == (8, pytest.approx(30 * 3600.0))
+    rate, measured = windows_per_day(store, settings)
+    assert measured and rate == pytest.approx(8 / 30 * 24)
+    fixed = Settings(database_url="sqlite://", scheduler=SchedulerSettings(windows_per_day=100))
+    assert windows_per_day(store, fixed) == (100.0, False)  # a set rate wins
