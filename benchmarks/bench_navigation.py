@@ -8,9 +8,10 @@ factors drift by ~300 ppm, biases by ~0.01 deg/h, misalignments by ~1e-5 rad (mo
 barely ages). The old coefficients are seed 000 Table 2 (plus the project's accel stand-in,
 which does not age). The aged unit is recalibrated from a simulated 24-position static session
 (seed 002 scheme, 24 windows of 1 h: the seed used 24 h of data) by MCS-NAFSA and by LM, with
-the old set as prior, from the window means alone (the papers' method); and, as the service
-does by default, by LM from a sample-level session of the same 24 positions (600 s holds at
-50 Hz) with the 5 s slews between them (recal.detect.slews), which pins the gyro misalignment.
+the old set as prior, from the window means alone (the papers' method); and, as recal calibrate
+does by default (the service uses the slews too, with MCS-NAFSA), by LM from a sample-level
+session of the same 24 positions (600 s holds at 50 Hz) with the 5 s slews between them
+(recal.detect.slews), which pins the gyro misalignment.
 
 Table 5 structure: 24 h static navigation after a 300 s alignment, at Harbin's latitude, with
 (a) the old coefficients, (b) MCS-NAFSA, (c) LM, (d) the truth. Each 24 h error is printed with

@@ -2,9 +2,10 @@
 
 Each history feeds windows of a simulated unit (random orientations, both triads, the window
 noise of a KVH-class unit; `recal.sim.simulate.simulate_positions`) one at a time into a real
-SQLite store and the daemon's :class:`service.scheduler.Scheduler` (jobs in worker processes,
-LM, the gate, publication), waiting for the scheduler to settle after each window, as at sea
-where windows come hours apart:
+SQLite store and the daemon's :class:`service.scheduler.Scheduler` (jobs in worker processes
+with the shipped ``[scheduler] method``, ``SchedulerSettings().method``, MCS-NAFSA; the gate,
+publication), waiting for the scheduler to settle after each window, as at sea where windows
+come hours apart:
 
 * **steady**: 96 windows of one truth. Every job after the first is needless for the unit (it
   cannot change) and costs a worker; the information trigger runs one only while the answer
@@ -16,8 +17,14 @@ where windows come hours apart:
 Policies compared side by side: ``count`` (the old rule, a job every ``min_new_positions = 4``
 windows), ``drift+information`` (the default), ``drift`` alone.
 
-    python benchmarks/bench_triggers.py               # 5 seeds, about 15 min on 2 cores
+    python benchmarks/bench_triggers.py               # 5 seeds, the shipped method
     python benchmarks/bench_triggers.py --seeds 2     # quicker
+    python benchmarks/bench_triggers.py --method lm   # LM jobs (about 15 min for 5 seeds)
+    python benchmarks/bench_triggers.py --policies drift+information --seeds 1
+
+With MCS-NAFSA a seed takes about 30 min on 2 cores (2026, one seed, loaded machine: 1753 s, of
+which 1278 s for ``count``'s 38 jobs, 427 s for ``drift+information``, 48 s for ``drift``), so
+the default 5 seeds take about 2.5 h; LM about 3 min a seed.
 """
 
 from __future__ import annotations
@@ -61,13 +68,13 @@ def windows(truth: CoefficientSet, n: int, seed: int, t0: float) -> dict[str, np
     return cols
 
 
-def run(history: list[dict[str, np.ndarray]], policy: list[str], folder: Path) -> dict:
+def run(history: list[dict[str, np.ndarray]], policy: list[str], folder: Path, method: str) -> dict:
     settings = Settings(
         database_url=f"sqlite:///{folder / 'r.db'}",
         publish_path=str(folder / "c.json"),
         site=SiteSettings(latitude_deg=LAT),
         scheduler=SchedulerSettings(
-            trigger=policy, min_positions=24, method="lm", use_slews=False
+            trigger=policy, min_positions=24, method=method, use_slews=False
         ),  # fmt: skip
     )
     store = Store(settings.database_url)
@@ -94,19 +101,30 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0)
+    shipped = SchedulerSettings().method
+    ap.add_argument("--method", default=shipped, help="[scheduler] method of the jobs "
+                    f"(default: the shipped one, {shipped})")  # fmt: skip
+    ap.add_argument("--policies", default=",".join(POLICIES),
+                    help="comma-separated, from: " + ", ".join(POLICIES))  # fmt: skip
     args = ap.parse_args()
+    policies = {name: POLICIES[name] for name in args.policies.split(",")}
+    print(f"jobs: [scheduler] method = {args.method!r}"
+          + (" (the shipped default)" if args.method == shipped else
+             f" (the daemon ships {shipped!r})"), flush=True)  # fmt: skip
+    t_start = time.monotonic()
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         truth = kvh_like_truth(100 + seed)
         steady = [windows(truth, 96, 1000 + seed, 0.0)]
         step = [windows(truth, 48, 1000 + seed, 0.0),
                 windows(stepped(truth), 48, 3000 + seed, 1e6)]  # fmt: skip
-        for name, policy in POLICIES.items():
+        for name, policy in policies.items():
+            t0 = time.monotonic()
             with tempfile.TemporaryDirectory() as tmp:
-                versions = run(steady, policy, Path(tmp))["versions"]
+                versions = run(steady, policy, Path(tmp), args.method)["versions"]
             jobs = len(versions)
             with tempfile.TemporaryDirectory() as tmp:
-                out = run(step, policy, Path(tmp))
+                out = run(step, policy, Path(tmp), args.method)
                 vs = out["versions"]
                 after = [
                     v for v in vs if v.prior_version is not None and max(v.positions_used) > 48
@@ -129,15 +147,16 @@ def main() -> int:
             print(f"seed {seed} {name:18s} steady: {jobs:2d} jobs ({jobs - 1} after the first); "
                   f"step: first job on the new unit after {react} windows ({why}), drift job after "
                   f"{declared}, "
-                  f"accepted version since the change sees the step: {seen}", flush=True)  # fmt: skip
-    print()
+                  f"accepted version since the change sees the step: {seen} "
+                  f"({time.monotonic() - t0:.0f} s)", flush=True)  # fmt: skip
+    print(f"\njobs: method {args.method}; {time.monotonic() - t_start:.0f} s in all")
     print(
         "| policy | steady: jobs after the first (mean, 96 windows) | step: windows to the first "
         "job on the changed unit (median, max) | its trigger | windows to a job because of "
         "drift (median, max) | accepted version sees the step |"
     )
     print("|---|---|---|---|---|---|")
-    for name in POLICIES:
+    for name in policies:
         mine = [r for r in rows if r[1] == name]
         extra = np.mean([r[2] - 1 for r in mine])
         reacts = [r[3] for r in mine if r[3] is not None]

@@ -7,8 +7,8 @@ and 1 degree (log-uniform; pitch half of it, yaw swing and heave 0.3 of it in de
 steadily by 15-90 degrees in 1-3 min; about once a day it goes out into rough sea for 2-4 h (roll 3 degrees, heave 0.9 m) where it holds for 10-30 min between turns: nothing
 there should be usable. The recording is written chunk by chunk as a KVH Format A capture at a
 reduced rate (10 Hz by default), then replayed through a real ``replay://`` port into the
-daemon (reader, ingest thread, ``[detector] motion = "hull"``, SQLite, scheduler with LM jobs
-in worker processes, the gate with ``publish_observable_part``, the publisher), which starts
+daemon (reader, ingest thread, ``[detector] motion = "hull"``, SQLite, scheduler with jobs of
+the shipped method, MCS-NAFSA (``--method lm`` for LM), in worker processes, the gate with ``publish_observable_part``, the publisher), which starts
 from a prior: the truth drawn within 100 ppm, 0.01 deg/h, 20 ug and 0.1 mrad, carrying that
 uncertainty (service.capture_sim.prior_near).
 
@@ -140,7 +140,7 @@ def cpu_s() -> tuple[float, float]:
 
 
 def run_daemon(capture: Path, prior_path: Path, folder: Path, rate: float, lat: float,
-               speed: str) -> dict:  # fmt: skip
+               speed: str, method: str) -> dict:  # fmt: skip
     settings = Settings(
         database_url=f"sqlite:///{folder / 'recal.db'}",
         publish_path=str(folder / "coefficients.json"),
@@ -149,7 +149,7 @@ def run_daemon(capture: Path, prior_path: Path, folder: Path, rate: float, lat: 
         device=DeviceSettings(url=f"replay://{capture}?speed={speed}&rate={rate:g}", rate_hz=rate),
         site=SiteSettings(latitude_deg=lat),
         detector=DetectorSettings(motion="hull"),
-        scheduler=SchedulerSettings(method="lm"),
+        scheduler=SchedulerSettings(method=method),
         gate=GateSettings(publish_observable_part=True),
     )
     c0, t0 = cpu_s(), time.monotonic()
@@ -265,6 +265,9 @@ def main() -> int:
         help="hours of a 1 kHz berth for the per-frame CPU (default 2; 0: skip)",
     )
     ap.add_argument("--stream-only", action="store_true", help="only the 1 kHz CPU measurement")
+    shipped = SchedulerSettings().method
+    ap.add_argument("--method", default=shipped,
+                    help=f"[scheduler] method of the jobs (default: the shipped one, {shipped})")  # fmt: skip
     args = ap.parse_args()
     if args.quick:
         args.days, args.speed = 1.0, "max"
@@ -279,7 +282,9 @@ def main() -> int:
           f"{(week.end - week.start)[holds & rough].sum() / 3600:.1f} h), "
           f"{(~holds).sum()} turns; daily peak roll "
           + ", ".join(f"{r:.2f}" for r in week.day_roll_deg) + " deg (rough: "
-          f"{ROUGH_SCALE:g} deg); {args.rate:g} Hz, latitude {args.latitude:g}")  # fmt: skip
+          f"{ROUGH_SCALE:g} deg); {args.rate:g} Hz, latitude {args.latitude:g}; jobs: "
+          f"[scheduler] method = {args.method!r}"
+          + (" (the shipped default)" if args.method == shipped else f" (ships {shipped!r})"))  # fmt: skip
 
     tmp = tempfile.TemporaryDirectory(prefix="bench_vessel.")
     folder = Path(args.keep) if args.keep else Path(tmp.name)
@@ -303,7 +308,7 @@ def main() -> int:
     frames = write_capture(truth, week, capture, args.rate, args.latitude, args.seed)
     print(f"simulated {frames:,} frames ({capture.stat().st_size / 1e6:.0f} MB) in "
           f"{time.monotonic() - t0:.0f} s; replaying at speed {args.speed} ...")  # fmt: skip
-    r = run_daemon(capture, prior_path, folder, args.rate, args.latitude, args.speed)
+    r = run_daemon(capture, prior_path, folder, args.rate, args.latitude, args.speed, args.method)
 
     start, end = r["start_s"], r["end_s"]
     # the segment each window starts in, and whether it reaches into any turn

@@ -1,7 +1,8 @@
 """This project against imucal's own Ferraris calibrations of two real MEMS sessions
 (../shared/data/imucal): scale factors in ppm of imucal's, with this project's 1-sigma, as a user
-would run it (flags: --columns and --rate only), plus chi2_red, convergence and the fixed point
-(the calibration's own output as --prior).
+would run it (flags: --columns and --rate only; the Ferraris session also with its turns declared
+closed, --turn-closure 0.1), plus chi2_red, convergence and the fixed point (the calibration's own
+output as --prior).
 
     python benchmarks/compare_imucal.py
 
@@ -86,18 +87,33 @@ def main_() -> int:
              "--rate", "102.4", "--columns", COLUMNS, "-o", str(fer_pos)])  # fmt: skip
         ref = coefficients_from_imucal(json.loads((SHARED / "example_ferraris_session"
                                                    ".imucal_cal.json").read_text()), g)  # fmt: skip
+        # the default: a MEMS gyro cannot check its turns' closure by Earth rate, so none is
+        # assumed; the Ferraris protocol's three 360-degree turns declared closed to 0.1 deg
+        plain = run(["calibrate", str(fer_pos)])
+        lines.append(row("Ferraris, turns not declared (default)", plain, ref, "gyro"))
+        lines.append(row("Ferraris, turns not declared (default)", plain, ref, "accel"))
+        closed = ["--turn-closure", "0.1"]
         first = d / "first.json"
-        doc = run(["calibrate", str(fer_pos), "-o", str(first)])
-        lines.append(row("Ferraris (faces + turns)", doc, ref, "gyro"))
-        lines.append(row("Ferraris (faces + turns)", doc, ref, "accel"))
-        again = run(["calibrate", str(fer_pos), "--prior", str(first)])
+        doc = run(["calibrate", str(fer_pos), *closed, "-o", str(first)])
+        lines.append(row("Ferraris, turns declared (--turn-closure 0.1)", doc, ref, "gyro"))
+        lines.append(row("Ferraris, turns declared (--turn-closure 0.1)", doc, ref, "accel"))
+        for label, x in (("not declared", plain), ("declared", doc)):
+            held = [f"{s}.{k}" for s in ("gyro", "accel") for k, v in x["status"][s].items()
+                    if "held" in (v.values() if isinstance(v, dict) else v)]  # fmt: skip
+            gb = np.array(x["coefficients"]["gyro"]["bias"]) - ref.values["gyro.bias"]
+            gs = np.array(x["uncertainty"]["gyro"]["bias"])
+            notes.append(f"Ferraris, turns {label}: chi2_red {x['chi2_red']:.2f}; gyro bias off "
+                         f"imucal's {' / '.join(f'{v:+.1f}' for v in gb)} deg/h (1-sigma "
+                         f"{' / '.join(f'{v:.1f}' for v in gs)}); held: "
+                         f"{', '.join(held) or 'none'}")  # fmt: skip
+        again = run(["calibrate", str(fer_pos), *closed, "--prior", str(first)])
         moved = max(
             float(np.max(np.abs(np.array(again["coefficients"][s][k])
                                 - np.array(doc["coefficients"][s][k]))
                          / np.array(doc["uncertainty"][s][k])))
             for s in ("gyro", "accel") for k in ("scale", "bias")
         )  # fmt: skip
-        notes.append(f"Ferraris: chi2_red {doc['chi2_red']:.2f}, converged {doc['converged']}; "
+        notes.append(f"Ferraris, turns declared: converged {doc['converged']}; "
                      f"its own output as --prior: chi2_red {again['chi2_red']:.2f}, largest "
                      f"scale/bias change {moved:.3f} sigma")  # fmt: skip
     print("# This project against imucal's Ferraris calibrations (../shared/data/imucal)\n")
@@ -105,7 +121,10 @@ def main_() -> int:
     print()
     for n in notes:
         print(f"- {n}")
-    print("\ntargets: accelerometer scale within 3 sigma + 50 ppm; gyro scale within 1000 ppm")
+    print(
+        "\ntargets: accelerometer scale within 3 sigma + 50 ppm; gyro scale within 1000 ppm "
+        "(with the turns declared closed)"
+    )
     return 0
 
 

@@ -15,20 +15,27 @@ Cases (each its own folder, database, spool and clean reference run; ``--runs`` 
 * ``disk-full``    the spool folder is a full tmpfs (ENOSPC): /health must name it and the
                    cause, windows go straight to the database; kill -9.
 
-Each run starts ``recal serve`` (its own process session) on a replayed capture. Just before
-the kill it reads ``/health`` (``windows_detected``: windows made durable, in the spool or the
-database). After the kill, and again after the next start (the restart), it checks:
+Each run starts ``recal serve`` (its own process session) on a replayed capture, its jobs with
+the shipped ``[scheduler] method`` (``SchedulerSettings().method``, MCS-NAFSA; ``--method lm``
+for the faster stand-in). Just before the kill it reads ``/health`` (``windows_detected``:
+windows made durable, in the spool or the database). Right after the kill it counts what is
+durable: the killed session's windows in the database plus those in spool files the database
+has not committed (a batch the kill caught in the spool is in this count, which /health read
+just before could not include). After the kill, and again after the next start (the restart),
+it checks:
 
 1. no process of the killed run is left (job workers included);
 2. ``PRAGMA integrity_check`` is ``ok`` (SQLite); every version is complete;
 3. the published file equals the current accepted version once the restarted daemon is up;
-4. lost: windows counted as detected before the kill that the restart does not store;
-   doubled: a window stored twice in a session; every session's windows are a prefix of the
-   clean run's (same order, same means);
+4. detected: the durable count (never below /health's ``windows_detected``, else a failure: a
+   window counted as durable is in neither the database nor the spool); lost: detected windows
+   the restart does not store; doubled: a window stored twice in a session; every session's
+   windows are a prefix of the clean run's (same order, same means);
 5. after the last run, a clean SIGTERM exits 0.
 
-    python benchmarks/fault_injection.py --runs 50            # every case, about 10 s a run
+    python benchmarks/fault_injection.py --runs 50            # every case
     python benchmarks/fault_injection.py --runs 5 --cases outage,disk-full
+    python benchmarks/fault_injection.py --runs 3 --cases storing --method lm
 """
 
 from __future__ import annotations
@@ -94,12 +101,41 @@ def _check_db(url: str) -> list[str]:
     return failures
 
 
+def _spooled(folder: Path, url: str) -> tuple[dict[int, int], list[str]]:
+    """Per session, the windows in the spool's batch files whose batch the database has not
+    committed (a file that outlived its commit is not counted twice); and the files that
+    cannot be read (the restart would set them aside: their windows would be lost)."""
+    from service.spool import SUFFIX, read_entry
+
+    committed = {k for (k,) in _query(url, "SELECT key FROM spool_batches")}
+    out: dict[int, int] = {}
+    bad = []
+    for path in sorted(folder.glob(f"*{SUFFIX}")) if folder.is_dir() else []:
+        if not path.name.split(".", 1)[0].isdigit():
+            continue
+        try:
+            entry = read_entry(path)
+        except (OSError, ValueError, KeyError) as exc:
+            bad.append(f"{path.name}: {exc}")
+            continue
+        if entry.key not in committed:
+            out[entry.session_id] = out.get(entry.session_id, 0) + entry.size
+    return out, bad
+
+
 def _current(url: str) -> int | None:
     return _query(url, "SELECT max(id) FROM calibrations WHERE accepted")[0][0]
 
 
 def _versions(url: str) -> int:
     return _query(url, "SELECT count(*) FROM calibrations WHERE accepted")[0][0]
+
+
+def shipped_method() -> str:
+    """The daemon's default ``[scheduler] method``."""
+    from service.config import SchedulerSettings
+
+    return SchedulerSettings().method
 
 
 def _pg_admin() -> Any:
@@ -208,12 +244,14 @@ class Case:
     folder: Path
     capture: Path
     size: int
+    method: str = field(default_factory=lambda: shipped_method())  # the daemon's jobs'
     port: int = field(default_factory=_free_port)
     url: str = ""
     pg_name: str | None = None
     reference: np.ndarray | None = None
     runs: int = 0
-    detected: int = 0  # windows durable before the kills (from /health just before each)
+    detected: int = 0  # windows durable at the kills (database + spool, counted after each)
+    spooled: int = 0  # of those, in the spool (batches the database had not committed)
     lost: int = 0
     doubled: int = 0
     hit: int = 0  # runs whose kill landed in the phase it aims at
@@ -246,8 +284,8 @@ class Case:
             f'[device]\nurl = "{device}"\nrate_hz = {RATE:g}\n'
             "[site]\nlatitude_deg = 45.0\n"
             f"[detector]\n{detector}"
-            # lm: a job takes about a second, so versions are reached within every run
-            f'[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "lm"\n{trigger}'
+            f'[scheduler]\nmin_positions = 12\nmin_new_positions = 4\nmethod = "{self.method}"\n'
+            f"{trigger}"
             "use_last_positions = 30\n"  # sessions pile up: a job stays a few seconds long
             "stop_wait_s = 2\n"
             f"[api]\nport = {self.port}\n"
@@ -350,8 +388,11 @@ def _compare(got: np.ndarray, reference: np.ndarray) -> int | None:
 
 
 def _spool_files(folder: Path) -> bool:
+    """Whether a batch is durable in the spool: a ``<seq>.<key>.npz`` file (renamed into place
+    after its fsync), not the ``.tmp-`` file still being written (never counted as detected)."""
     try:
-        return any(e.name.endswith(".npz") for e in os.scandir(folder))
+        return any(e.name.endswith(".npz") and e.name.split(".", 1)[0].isdigit()
+                   for e in os.scandir(folder))  # fmt: skip
     except OSError:
         return False
 
@@ -386,7 +427,8 @@ def aim(case: Case, rng: random.Random, first: dict[str, Any]) -> tuple[dict | N
     if case.name == "publication":
         before = _query(case.url, "SELECT coalesce(max(id), 0) FROM calibrations")[0][0]
         h = _health(port)
-        deadline = time.monotonic() + 15
+        # an MCS-NAFSA job on up to 30 positions with slews takes 10-30 s on 2 cores (LM ~1 s)
+        deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # the moment a new version is committed
             if _query(case.url, "SELECT coalesce(max(id), 0) FROM calibrations")[0][0] > before:
                 return h, True
@@ -411,11 +453,11 @@ def aim(case: Case, rng: random.Random, first: dict[str, Any]) -> tuple[dict | N
 
 
 @contextlib.contextmanager
-def setup(name: str, root: Path, capture: Path, size: int) -> Iterator[Case]:
+def setup(name: str, root: Path, capture: Path, size: int, method: str) -> Iterator[Case]:
     """The case's folder, database and spool (a PostgreSQL database, a full tmpfs)."""
     folder = root / name
     folder.mkdir()
-    case = Case(name, folder, capture, size, url=f"sqlite:///{folder / 'recal.db'}")
+    case = Case(name, folder, capture, size, method, url=f"sqlite:///{folder / 'recal.db'}")
     mounted = False
     try:
         if name == "outage":
@@ -496,13 +538,25 @@ def _run_case(case: Case, runs: int, rng: random.Random, procs: list) -> None:
         failures = _kill(proc)
         case.runs += 1
         case.hit += hit
-        detected = 0 if health is None else health["service"]["windows_detected"]
-        case.detected += detected
-        killed = (run, first["service"]["session"], detected)
         if case.name == "outage":
             _pg_allow(case.pg_name, allow=True)
+        # what the kill left durable: the session's rows in the database and in the spool
+        sid = first["service"]["session"]
+        stored = len(_windows(case.url).get(sid, ()))
+        spooled, bad = _spooled(case.spool, case.url)
+        durable = stored + spooled.get(sid, 0)
+        said = 0 if health is None else health["service"]["windows_detected"]
+        if durable < said:
+            failures.append(f"/health counted {said} window(s) durable before the kill; the "
+                            f"database and the spool hold {durable}")  # fmt: skip
+        failures += [f"unreadable spool file {b}" for b in bad]
+        detected = max(durable, said)
+        case.detected += detected
+        case.spooled += spooled.get(sid, 0)
+        killed = (run, sid, detected)
         case.failures += [f"run {run}: {f}" for f in failures + _check_db(case.url)]
-        print(f"[{case.name}] run {run:3d}: detected {detected:3d}  phase hit {hit!s:5}  "
+        print(f"[{case.name}] run {run:3d}: detected {detected:3d} (stored {stored}, spooled "
+              f"{spooled.get(sid, 0)}, /health said {said})  phase hit {hit!s:5}  "
               f"versions {_current(case.url)}  failures {len(case.failures)}",
               flush=True)  # fmt: skip
     case.versions = _versions(case.url)
@@ -519,7 +573,12 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated, from: "
                     + ", ".join(CASES))  # fmt: skip
+    ap.add_argument("--method", default=shipped_method(), help="[scheduler] method of the "
+                    f"daemon's jobs (default: the shipped one, {shipped_method()})")  # fmt: skip
     args = ap.parse_args()
+    print(f"jobs: [scheduler] method = {args.method!r}"
+          + (" (the shipped default)" if args.method == shipped_method() else
+             f" (the daemon ships {shipped_method()!r})"), flush=True)  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # cleaned up as after ^C (daemons, mounts, DBs)
     from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth, session_to_kvh
@@ -535,7 +594,7 @@ def main() -> int:
     for name in args.cases.split(","):
         t0 = time.monotonic()
         try:
-            with setup(name, root, capture, len(data)) as case:
+            with setup(name, root, capture, len(data), args.method) as case:
                 results.append(case)
                 run_case(case, args.runs, rng)
         except KeyboardInterrupt:
@@ -547,8 +606,9 @@ def main() -> int:
         print(f"[{name}] {time.monotonic() - t0:.0f} s", flush=True)
         for f in case.failures:
             print(f"  FAIL {f}", flush=True)
-    print(f"\n{'case':12s} {'runs':>5s} {'detected':>9s} {'lost':>5s} {'doubled':>8s} "
-          f"{'versions':>9s} {'in phase':>9s} {'failures':>9s}")  # fmt: skip
+    print(f"\njobs: method {args.method}")
+    print(f"{'case':12s} {'runs':>5s} {'detected':>9s} {'in spool':>9s} {'lost':>5s} "
+          f"{'doubled':>8s} {'versions':>9s} {'in phase':>9s} {'failures':>9s}")  # fmt: skip
     total = 0
     for c in results:
         total += len(c.failures)
@@ -556,7 +616,7 @@ def main() -> int:
         if c.time_shifted or c.stall_cut:
             extra += (f"  [reader stalls: {c.stall_cut} session(s) with a window cut, "
                       f"{c.time_shifted} time-shifted]")  # fmt: skip
-        print(f"{c.name:12s} {c.runs:5d} {c.detected:9d} {c.lost:5d} {c.doubled:8d} "
+        print(f"{c.name:12s} {c.runs:5d} {c.detected:9d} {c.spooled:9d} {c.lost:5d} {c.doubled:8d} "
               f"{c.versions:9d} {c.hit:5d}/{c.runs:<3d} {len(c.failures):9d}{extra}")  # fmt: skip
     shutil.rmtree(root, ignore_errors=True)
     return 1 if total else 0

@@ -306,6 +306,20 @@ class SchedulerSettings(Section):
         True,
         description="calibrate the gyro from the stored motion between windows too (recal.detect.slews)",
     )
+    turn_closure_deg: float = Field(
+        0.0,
+        ge=0,
+        lt=180,
+        description="declare that slews turning whole revolutions about the vertical close "
+        "exactly, with this 1-sigma (deg), as recal calibrate --turn-closure; 0: none declared, "
+        "a turn is closed only where the Earth-rate headings check it (a FOG)",
+    )
+    wander: Literal["auto", "none"] = Field(
+        "auto",
+        description="bias wander between windows (recal.solve.wander, as recal calibrate "
+        "--wander): auto estimates it from each job's residuals where the windows of a session "
+        "span an hour or more and keeps it when significant; none takes windows as independent",
+    )
     job_timeout_s: float = Field(
         1800.0, gt=0, description="a job running longer is killed and recorded as failed (s)"
     )

@@ -512,6 +512,16 @@ class Store:
         with self._tx() as s:
             return int(s.scalar(query) or 0)
 
+    def sessions_of(self, ids: Sequence[int]) -> np.ndarray:
+        """(M,) the session id of each stored window in ``ids`` (in that order): each session
+        restarts the device clock, so window times compare only within one."""
+        if not ids:
+            return np.zeros(0)
+        query = select(PositionRow.id, PositionRow.session_id).where(PositionRow.id.in_(list(ids)))
+        with self._tx() as s:
+            found = dict(s.execute(query).all())
+        return np.array([float(found[i]) for i in ids])
+
     def window_rate(self) -> tuple[int, float]:
         """Stored windows and the device time they were found in, s: per session, from the
         first window's start to the last one's end (sessions restart the device clock)."""

@@ -228,6 +228,9 @@ class Scheduler:
             if units:  # calibrating would publish a scale factor of 0.1, "accepted"
                 raise SchedulerRefused("; ".join(units))
             slews = stored_slews(self._store, positions, ids) if s.scheduler.use_slews else None
+            # each session restarts the device clock: the wander correlates windows within one
+            cols = {**positions.columns, "session": self._store.sessions_of(ids)}
+            positions = Positions(columns=cols, source=positions.source)
             options = CalibrationOptions(
                 sensor=None if s.scheduler.sensor == "both" else s.scheduler.sensor,
                 method=s.scheduler.method,
@@ -236,6 +239,8 @@ class Scheduler:
                 height_m=s.site.height_m,
                 prior=self._prior(previous),
                 slews=slews,
+                turn_closure_sigma_deg=s.scheduler.turn_closure_deg,
+                wander=None if s.scheduler.wander == "none" else s.scheduler.wander,
             )
             try:  # a design the engine would refuse is refused now, with its reason
                 # a hull-fixed unit may publish what it shows ([gate] publish_observable_part)

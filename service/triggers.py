@@ -136,7 +136,7 @@ def evaluate(
     may_rerun = not rerun_wait or new_since_job >= s.min_new_positions
     if "drift" in s.trigger:
         try:
-            out.drift = _drift(store, positions, ids, coefficients, covariance, settings)
+            out.drift = _drift(store, positions, ids, coefficients, covariance, settings, current)
         except (RecalInputError, ValueError, np.linalg.LinAlgError) as exc:
             out.problems.append(f"drift test: {exc}")
         else:
@@ -186,6 +186,12 @@ def windows_per_day(store: Any, settings: Settings) -> tuple[float, bool]:
     return count / span * 86400.0, True
 
 
+def _with_sessions(store: Any, positions: Positions, ids: list[int]) -> Positions:
+    """The windows with their ``session`` column (each session restarts the device clock)."""
+    cols = {**positions.columns, "session": store.sessions_of(ids)}
+    return Positions(columns=cols, source=positions.source)
+
+
 def _drift(
     store: Any,
     positions: Positions,
@@ -193,13 +199,17 @@ def _drift(
     coefficients: CoefficientSet,
     covariance: dict[str, Any] | None,
     settings: Settings,
+    current: Any = None,
 ) -> dict[str, Any]:
     """The drift test of these windows: last statistic, threshold, alarm, suspect (JSON)."""
     from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test
 
     s = settings.scheduler
+    # the accepted version's bias wander, so that wander between windows is not read as a step
+    wander = ((getattr(current, "document", None) or {}).get("noise_model") or {}).get("wander")
+    positions = _with_sessions(store, positions, ids) if wander else positions
     inputs = drift_inputs(positions, coefficients, covariance, settings.site.latitude_deg,
-                          settings.site.height_m)  # fmt: skip
+                          settings.site.height_m, wander=wander)  # fmt: skip
     per_day, measured = windows_per_day(store, settings)
     result = drift_test(inputs, DriftConfig.per_days(s.drift_false_alarm_days, per_day))
     last = len(ids) - 1

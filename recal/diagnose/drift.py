@@ -166,12 +166,18 @@ def drift_inputs(
     covariance: np.ndarray | Mapping[str, Any] | None = None,
     latitude_deg: float = 45.0,
     height_m: float = 0.0,
+    wander: Any = None,
 ) -> DriftInputs:
     """Residuals, noise, signatures and coefficient covariance of ``positions`` at
     ``coefficients``. ``covariance``: (D, D) in the layout of the tested triads (a
     :class:`~recal.solve.calibrate.CalibrationResult`'s, when it covers the same triads), or a
     coefficients file's ``"covariance"`` block (names + matrix); without it,
-    ``coefficients.uncertainty`` as a diagonal (unknown sigma: 0, with a note)."""
+    ``coefficients.uncertainty`` as a diagonal (unknown sigma: 0, with a note).
+
+    ``wander``: the accepted version's bias wander between windows
+    (:class:`recal.solve.wander.WanderModel`, or its JSON block). The windows are then taken
+    as a Kalman filter's innovations under it (:func:`recal.solve.wander.innovations`), which
+    are independent as the GLR needs: wander no longer accumulates into a false step."""
     from recal.solve.problem import Problem
 
     if not -90.0 <= latitude_deg <= 90.0:
@@ -195,7 +201,7 @@ def drift_inputs(
     still = positions.columns.get("gyro_still")
     if still is not None:
         active[still == 0, 0] = active[still == 0, 2] = False
-    noise = _noise_cov(problem, theta, x, sensors)
+    noise, sens = _noise_and_sensitivity(problem, theta, x, sensors)
     residual = np.where(active, residual, 0.0)
     signature = np.where(active[..., None], signature, 0.0)
     both = active[:, :, None] & active[:, None, :]
@@ -204,6 +210,20 @@ def drift_inputs(
     time_s = None
     if "start_s" in positions.columns and "end_s" in positions.columns:
         time_s = 0.5 * (positions.columns["start_s"] + positions.columns["end_s"])
+    if wander is not None:
+        from recal.solve.wander import WanderModel, innovations, window_sessions
+
+        model = wander if isinstance(wander, WanderModel) else WanderModel.from_json_dict(wander)
+        if not model.empty:
+            H = {s: np.where(active[..., None], v, 0.0) for s, v in sens.items()}
+            sessions = window_sessions(positions.columns, M)
+            residual, signature, noise = innovations(
+                residual, signature, noise, H, time_s, sessions, model
+            )
+            notes.append(
+                f"windows taken as innovations under the accepted version's bias wander "
+                f"({', '.join(sorted(model.triads))}): wander is not read as a step"
+            )
     return DriftInputs(
         residual, active, noise, signature, cov, theta, tuple(layout.names), tuple(notes), time_s
     )
@@ -273,7 +293,15 @@ def _invariants(
 
 
 def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) -> np.ndarray:
-    """(M, 3, 3) covariance of the window residuals from each window's standard errors.
+    """(M, 3, 3) covariance of the window residuals from each window's standard errors."""
+    return _noise_and_sensitivity(problem, theta, x, sensors)[0]
+
+
+def _noise_and_sensitivity(
+    problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(M, 3, 3) covariance of the window residuals from each window's standard errors, and
+    sensor -> (M, 3, 3) d residual / d output of each axis (the wander's way in).
 
     The output noise (M, 3) goes to input units through the inverse model's own Jacobian
     d x / d N (per window, by central differences on all windows at once), then to the
@@ -282,6 +310,7 @@ def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) ->
     sl = problem.layout.model_slices()
     J = np.zeros((M, 3, 6))  # d invariants / d (input gyro, input accel)
     cov_in = np.zeros((M, 6, 6))
+    dxdn_of: dict[str, np.ndarray] = {}
     for i, s in enumerate(("gyro", "accel")):
         if s not in sensors:
             continue
@@ -299,6 +328,7 @@ def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) ->
             dxdn[:, :, a] = (
                 m.inverse(th, up, problem.ctx)[0] - m.inverse(th, dn, problem.ctx)[0]
             ) / (2 * h[:, a, None])
+        dxdn_of[s] = dxdn
         cov_in[:, 3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = np.einsum(
             "mia,ma,mja->mij", dxdn, sem**2, dxdn
         )
@@ -306,7 +336,12 @@ def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) ->
     if len(sensors) == 2:
         J[:, 2, :3] = x["accel"][0]
         J[:, 2, 3:] = x["gyro"][0]
-    return np.einsum("mia,mab,mjb->mij", J, cov_in, J)
+    sens = {
+        s: np.einsum("mia,mab->mib", J[:, :, 3 * i : 3 * i + 3], dxdn_of[s])
+        for i, s in enumerate(("gyro", "accel"))
+        if s in dxdn_of
+    }
+    return np.einsum("mia,mab,mjb->mij", J, cov_in, J), sens
 
 
 def coefficient_covariance(

@@ -269,6 +269,7 @@ class Diagnosis:
             "chi2_red": _finite(self.chi2_red),
             "chi2_red_with_suggested": _finite(self.final_chi2_red),
             "noise_known": self.baseline.problem.noise_known,
+            "noise_model": self.baseline.noise_model or None,
             "method": "LM fits with the baseline's residual weights; F-test and BIC per "
             "candidate; confounding from the correlation of fitted signatures",
             "alpha": ALPHA,
@@ -321,9 +322,12 @@ def _fit(
     problem = Problem.build(positions, models, opt.latitude_deg, opt.height_m, theta0,
                             slews=b.slews, slew_earth_rate=b.slew_earth_rate,
                             known_rotations=b.known_rotations,
-                            turn_closure_sigma_deg=opt.turn_closure_sigma_deg,
                             slew_excess_rad=b.slew_excess_rad)  # fmt: skip
+    # the baseline's closed turns (decided at its prior), not decided again at this start
+    problem = replace(problem, closed_turns=b.closed_turns, turn_candidates=b.turn_candidates)
     problem = problem.with_sigma(b.sigma, b.sigma_source)
+    if b.wander is not None:  # the baseline's bias wander is part of the noise every fit sees
+        problem = problem.with_wander(b.wander, theta0)
     typical = layout.typical(theta0)
     report = analyze(problem, theta0, typical, info_min=FIT_INFO_MIN)
     if report.verdict == "insufficient":
@@ -459,6 +463,15 @@ def diagnose(
             f"{base.observability.rank} (diagnose fits directions the data pin down to "
             f"{FIT_INFO_MIN:g} of their typical change, calibrate to 1), so its chi2_red "
             f"({fit0.rss / (n - fit0.rank):.3g}) differs from calibrate's ({base.chi2_red:.3g})"
+        )
+    wander = (base.noise_model or {}).get("wander")
+    if wander:
+        notes.append(
+            "wander first: the windows share a bias wander (recal.solve.wander; "
+            + _wander_summary(wander)
+            + "), which explains part of the misfit without any effect; every candidate is "
+            "scored against the noise with it (a slow drift in time is wander, not an effect, "
+            "unless an effect explains it better)"
         )
     ranked: list[Candidate] = []
     suggested: list[str] = []
@@ -603,12 +616,21 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
         if traded
         else ""
     ) + (f"; {d.warning}" if d.warning else "")
+    wander = (d.baseline.noise_model or {}).get("wander")
     if not d.model_fails:
         d.verdict = (
             f"with {added} the residual is at the noise floor (chi2_red {d.chi2_red:.3g} -> "
             f"{d.final_chi2_red:.3g})"
             if added
-            else f"the model fits to the noise floor (chi2_red {d.chi2_red:.3g}); no effect missing"
+            else (
+                "the misfit is bias wander between the windows ("
+                + _wander_summary(wander)
+                + f"), not a missing effect: with it the model fits to the noise floor "
+                f"(chi2_red {d.chi2_red:.3g})"
+                if wander
+                else f"the model fits to the noise floor (chi2_red {d.chi2_red:.3g}); no effect "
+                "missing"
+            )
         ) + caveat
         return
     per = ", ".join(map(str, d.worst_positions))
@@ -626,6 +648,16 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
         + "; an effect outside the catalogue may be missing: write it as a --plugin"
         + (f"; {d.warning}" if d.warning else "")
     )
+
+
+def _wander_summary(wander: dict[str, Any]) -> str:
+    parts = []
+    for s in ("gyro", "accel"):
+        if s in wander:
+            taus = [v for v in wander[s]["tau_s"] if v is not None]
+            tau = f", tau {max(taus) / 3600:.3g} h" if taus else ""
+            parts.append(f"{s} sigma {max(wander[s]['sigma']):.3g}{tau}")
+    return "; ".join(parts)
 
 
 def _residual_correlations(fit: Fit, base: CalibrationResult) -> dict[str, float]:

@@ -99,8 +99,10 @@ class NoiseSpec:
     window_s: static window length; slew_s: time between windows; rate_hz: sample rate.
     gm_gyro_dph, gm_accel_ug: steady-state 1-sigma of a first-order Gauss-Markov bias added to
         every sample (deg/h, micro-g), correlation time gm_tau_s (s). Real sensors have such
-        correlated noise (bias instability); 0 (the default) leaves it out. Only the sample-level
-        simulator (:func:`recal.sim.session.simulate_session`) draws it.
+        correlated noise (bias instability); 0 (the default) leaves it out. The sample-level
+        simulator (:func:`recal.sim.session.simulate_session`) draws it per sample,
+        :func:`simulate_positions` per window (the process averaged over the window, windows
+        correlated by exp(-gap / tau)): the bias wander between windows.
     """
 
     arw_deg_rt_h: float = 0.0005
@@ -165,6 +167,27 @@ def truth_model(
     return np.concatenate([vals.values[t.name] for t in model.terms])[None], model
 
 
+def window_gauss_markov(
+    t_mid_s: np.ndarray, window_s: float, sigma: float, tau_s: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(M, 3) window means of a first-order Gauss-Markov process (steady-state 1-sigma
+    ``sigma``, correlation time ``tau_s``) over windows of ``window_s`` centred at ``t_mid_s``:
+    each mean's variance is the process's averaged over the window, consecutive means are
+    correlated by exp(-gap / tau) (exact for windows much shorter than tau). Zeros when sigma is
+    0 (no draw, so other draws are unchanged)."""
+    M = len(t_mid_s)
+    if sigma <= 0 or M == 0:
+        return np.zeros((M, 3))
+    x = window_s / tau_s
+    var = sigma**2 * (2.0 * (x - 1.0 + np.exp(-x)) / x**2 if x > 1e-6 else 1.0)
+    rho = np.exp(-np.diff(t_mid_s) / tau_s)
+    out = np.empty((M, 3))
+    out[0] = rng.normal(size=3)
+    for k in range(1, M):  # an AR(1) recursion over windows (tens), not samples
+        out[k] = rho[k - 1] * out[k - 1] + np.sqrt(1.0 - rho[k - 1] ** 2) * rng.normal(size=3)
+    return out * np.sqrt(var)
+
+
 def simulate_positions(
     truth: CoefficientSet,
     design: str = "24",
@@ -213,6 +236,13 @@ def simulate_positions(
         theta, model = truth_model(truth, sensor, hidden)
         sigma_in = noise.per_sample_sigma(sensor)
         n_in = true_in[sensor] + rng.normal(size=(M, 3)) * sigma_in / np.sqrt(samples)[:, None]
+        n_in += window_gauss_markov(
+            0.5 * (start + end),
+            noise.window_s,
+            noise.gauss_markov_sigma(sensor),
+            noise.gm_tau_s,
+            rng,
+        )
         out = model.forward(theta, n_in, ctx)[0]
         gain = np.abs(truth.values[f"{sensor}.scale"])
         for i, a in enumerate("xyz"):

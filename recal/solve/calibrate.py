@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from recal.detect.slews import DEG_H_TO_RAD_S, TURN_CLOSURE_SIGMA_DEG, KnownRotations, Slews
+from recal.detect.slews import CHECKED, DEG_H_TO_RAD_S, KnownRotations, Slews
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet, layout_like
 from recal.model.error_model import Model, ParameterLayout
@@ -49,8 +49,9 @@ from recal.solve.observability import (
 )
 from recal.solve.phases import paper_phases, whitened_phase
 from recal.solve.problem import Problem
-from recal.solve.start import data_prior, references
+from recal.solve.start import DataPrior, data_prior, references
 from recal.solve.swarm import SwarmConfig
+from recal.solve.wander import WANDER_SIGNIFICANCE as WANDER_TEST
 
 METHODS = ("lm",) + SWARM_METHODS
 #: The steps :func:`calibrate` reports to its ``progress`` callback with LM (one call each).
@@ -117,8 +118,14 @@ class CalibrationOptions:
     t0_c: float = 25.0
     slews: Slews | None = None  # gyro increments between the windows (recal.detect.slews), or None
     known_rotations: KnownRotations | None = None  # commanded rotations of some slews
-    #: heading closure of a closed turn, deg (recal.detect.slews.find_closed_turns); <= 0: none assumed
-    turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG
+    #: declared closed turns: the 1-sigma, deg, of a slew that turns whole revolutions about the
+    #: vertical where Earth rate cannot check it (recal.detect.slews.turn_candidates); <= 0 (the
+    #: default): none declared, only turns checked by the Earth-rate headings are closed
+    turn_closure_sigma_deg: float = 0.0
+    #: bias wander between windows (recal.solve.wander): None (windows independent), "auto"
+    #: (estimated from the fit's residuals, kept when a likelihood-ratio test says so), or a
+    #: WanderModel (given, e.g. from recal noise)
+    wander: Any = None
     #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
     #: a missing effect can drag the baseline fit there, and the candidates must still be tried
     refuse_at_solution: bool = True
@@ -167,6 +174,11 @@ class CalibrationResult:
     held_uncertainty: HeldUncertainty | None = None
     #: {"converged": bool, "reason": str | None, ...} (recal.solve.convergence)
     convergence: dict[str, Any] = field(default_factory=dict)
+    #: what the windows' noise was taken to be: their own sems, and the bias wander between
+    #: them (recal.solve.wander) with the test that decided it (JSON-ready)
+    noise_model: dict[str, Any] = field(default_factory=dict)
+    #: the declared closed turns' 1-sigma, deg (CalibrationOptions.turn_closure_sigma_deg; 0: none)
+    turn_closure_declared_deg: float = 0.0
 
     @property
     def layout(self) -> ParameterLayout:
@@ -212,7 +224,10 @@ class CalibrationResult:
                 out[n]["per_turn"] = out[n].pop("per_position")
                 out[n]["slews"] = [int(i) for i in turns.index]
                 out[n]["turns"] = [int(k) for k in turns.turns]
-                out[n]["closure_sigma_deg"] = float(np.degrees(turns.sigma_rad[0]))
+                out[n]["how"] = [
+                    c.how for i in turns.index for c in self.problem.turn_candidates if c.slew == i
+                ]
+                out[n]["closure_sigma_deg"] = [float(v) for v in np.degrees(turns.sigma_rad)]
                 if noise:
                     w = after[n][0] / self.problem.sigma[n]
                     out[n]["chi2_red"] = float(np.mean(w * w))
@@ -278,6 +293,13 @@ class CalibrationResult:
             "wall_time_s": self.wall_time_s,
             "notes": self.notes,
         }
+        if self.noise_model:
+            out["noise_model"] = dict(self.noise_model)
+        if self.problem.turn_candidates:
+            out["turn_closure"] = {
+                "declared_sigma_deg": self.turn_closure_declared_deg or None,
+                "candidates": [c.to_json_dict() for c in self.problem.turn_candidates],
+            }
         if self.convergence:
             out["converged"] = bool(self.convergence.get("converged"))
             out["convergence"] = dict(self.convergence)
@@ -798,6 +820,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
                           opt.height_m, with_slews=slews is not None)  # fmt: skip
     layout = ParameterLayout(models)
     excess, earth_rate, blind = 0.0, True, False
+    gyro_sigma: dict[str, np.ndarray] | None = None  # the heading check's gyro prior 1-sigma
 
     def build(theta: np.ndarray) -> Problem:
         if blind:  # the bias's typical change for a gyro blind to Earth rate
@@ -808,6 +831,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
             positions, models, opt.latitude_deg, opt.height_m, theta,
             slews=slews, slew_earth_rate=earth_rate, known_rotations=opt.known_rotations,
             turn_closure_sigma_deg=opt.turn_closure_sigma_deg, slew_excess_rad=excess,
+            gyro_prior_sigma=gyro_sigma,
         )  # fmt: skip
 
     if slews is not None:
@@ -831,6 +855,8 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
             )
             if opt.prior is None:  # the gyro's start from the slews
                 theta0 = slew_prior(build(theta0), theta0)
+        else:  # the Earth-rate heading check of closed turns: the gyro's prior 1-sigma
+            gyro_sigma = _gyro_prior_sigma(positions, layout, theta0, opt, start)
     problem = build(theta0)
     typical = layout.typical(theta0)
     own = None  # the data-derived start's own 1-sigma (a blind gyro's start is the slews')
@@ -847,15 +873,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
             f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
             f"included; {np.median(slews.duration_s):.3g} s median)"
         )
-        turns = problem.closed_turns
-        if turns is not None:
-            notes.append(
-                f"{len(turns)} closed turn(s) found and assumed (slews "
-                f"{', '.join(str(int(i)) for i in turns.index)}: gravity returns to where it "
-                f"was while the gyro turns {', '.join(f'{int(k):+d}' for k in turns.turns)} "
-                f"x 360 deg about the vertical): each taken as exactly whole turns, heading "
-                f"closure 1-sigma {opt.turn_closure_sigma_deg:.3g} deg (--turn-closure)"
-            )
+        notes += _turn_notes(problem)
         fit = slew_excess(problem, theta0, typical, held.sigma / typical, held.bar(layout, typical))
         excess, chi2_slews = fit.excess, fit.chi2_first
         if excess == 0 and fit.report is not None and fit.theta is not None:
@@ -889,6 +907,43 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical, held, first)
 
 
+def _gyro_prior_sigma(
+    positions: Positions,
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    opt: CalibrationOptions,
+    start: DataPrior,
+) -> dict[str, np.ndarray]:
+    """The gyro's prior 1-sigma (bias deg/h, scale in its units) as the held coefficients get it
+    (:func:`_prior_uncertainty`), for the Earth-rate heading check of closed turns."""
+    own = start.sigma if opt.prior is None and start.sigma.shape == theta0.shape else None
+    held = _prior_uncertainty(positions, layout, theta0, layout.typical(theta0), opt, own)
+    sl = layout.term_slices()
+    return {n: held.sigma[sl[n]] for n in ("gyro.bias", "gyro.scale")}
+
+
+def _turn_notes(problem: Problem) -> list[str]:
+    """One note per slew that integrates close to whole turns about the vertical: closed
+    (checked by Earth rate, with the headings, or declared) or not, and why."""
+    notes = []
+    for c in problem.turn_candidates:
+        head = (
+            f"slew {c.slew} (windows {c.first}-{c.second}) turns {c.integrated_deg:+.1f} deg "
+            f"about the vertical and gravity returns: "
+        )
+        if c.how == CHECKED:
+            notes.append(
+                head + f"a closed turn ({c.turns:+d} x 360 deg), checked by Earth rate: headings "
+                f"{c.heading_first_deg:.2f} and {c.heading_second_deg:.2f} deg, change "
+                f"{c.heading_change_deg:+.3f} +- {c.sigma_deg:.3g} deg (the closure's 1-sigma)"
+            )
+        elif c.closed:
+            notes.append(head + f"a closed turn ({c.turns:+d} x 360 deg), {c.reason}")
+        else:
+            notes.append(head + f"not taken as a closed turn: {c.reason}")
+    return notes
+
+
 def _prior_uncertainty(
     positions: Positions,
     layout: ParameterLayout,
@@ -902,6 +957,114 @@ def _prior_uncertainty(
     given = opt.prior.uncertainty if opt.prior else None
     sigma, source = prior_sigma(layout, theta0, typical, given, cls, start_sigma)
     return HeldUncertainty(cls, source, sigma)
+
+
+#: "auto" looks for bias wander only where the windows span at least this long, s: over a
+#: session of minutes an excess misfit is model error (a warming MEMS drifts, a hand-turned
+#: unit flexes), which wander would only hide (imucal's Ferraris session: an accel "wander" of
+#: 0.24 counts that tripled the bias sigma).
+WANDER_MIN_SPAN_S = 3600.0
+#: ... and up to this many window residuals (the whitening is dense: R^2 memory, R^3 time).
+WANDER_MAX_RESIDUALS = 1500
+
+
+def _with_wander(
+    problem: Problem,
+    theta: np.ndarray,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    report: ObservabilityReport,
+    opt: CalibrationOptions,
+) -> tuple[Problem, np.ndarray, dict[str, Any], int]:
+    """The fit again with the windows' bias wander in their covariance (recal.solve.wander):
+    ``opt.wander`` "auto" estimates it from this fit's residuals (kept only when significant),
+    a WanderModel is taken as given. Returns the problem, the estimate, the JSON noise model
+    and the evaluations spent."""
+    from recal.solve.wander import (
+        TAU_GRID_S,
+        WanderModel,
+        estimate_wander,
+        window_sessions,
+        window_times,
+    )
+
+    windows = problem.window_invariants
+    t = window_times(problem.positions.columns, problem.M)
+    out: dict[str, Any] = {
+        "windows": "their own standard errors (sem or std columns)",
+        "times": "start_s/end_s" if t is not None else None,
+    }
+    if isinstance(opt.wander, WanderModel):
+        model = opt.wander
+    elif opt.wander == "auto":
+        span = 0.0 if t is None else _longest_session_span(t, problem.positions.columns)
+        if span < WANDER_MIN_SPAN_S or problem.window_sigma().size > WANDER_MAX_RESIDUALS:
+            out["wander"] = None
+            out["wander_test"] = (
+                f"not estimated: the windows span {span / 3600:.2g} h (wander between windows "
+                f"is looked for over {WANDER_MIN_SPAN_S / 3600:g} h or more; over a shorter "
+                "session an excess is model error, recal diagnose)"
+                if span < WANDER_MIN_SPAN_S
+                else f"not estimated: more than {WANDER_MAX_RESIDUALS} window residuals"
+            )
+            return problem, theta, out, 0
+        raw = problem.raw_residuals(theta[None])
+        sigma_w = problem.window_sigma()
+        r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
+        T = typical[:, None] * report.basis
+        J = jacobian(problem, theta, T.T)[: len(r_std)]
+        taus = [tau for tau in TAU_GRID_S if tau <= 2.0 * span]  # slower is a bias over the span
+        sessions = window_sessions(problem.positions.columns, problem.M)
+        model, fits = estimate_wander(
+            r_std, sigma_w, problem.wander_sensitivity(theta), t, taus=taus, jacobian=J,
+            sessions=sessions,
+        )  # fmt: skip
+        out["wander_test"] = [
+            {"sensor": f.sensor, "gain_2lnL": round(float(f.gain), 3), "threshold": WANDER_TEST,
+             "significant": bool(f.significant), "sigma": float(f.sigma),
+             "tau_s": float(f.tau_s), "sigma_ml": float(f.sigma_ml), "tau_ml_s": float(f.tau_ml_s)}
+            for f in fits
+        ]  # fmt: skip
+    else:
+        raise RecalInputError(f"wander must be None, 'auto' or a WanderModel, not {opt.wander!r}")
+    if model.empty:
+        out["wander"] = None
+        return problem, theta, out, 0
+    problem = problem.with_wander(model, theta)
+    out["wander"] = model.to_json_dict()
+    if opt.method == "lm" or opt.polish:
+        fixed = fixed_point(problem, theta, theta0, typical, report.basis)
+        return fixed.problem, fixed.theta, out, fixed.evaluations
+    lm = solve_lm(problem, theta, typical[:, None] * report.basis)
+    out["note"] = "the swarm's answer refined by LM on the covariance with the wander"
+    return problem, lm.theta, out, lm.evaluations
+
+
+def _longest_session_span(t: np.ndarray, columns: Any) -> float:
+    """The longest time the windows of one session span, s (sessions restart the clock)."""
+    from recal.solve.wander import window_sessions
+
+    sessions = window_sessions(columns, len(t))
+    if sessions is None:
+        return float(np.ptp(t))
+    return max(float(np.ptp(t[sessions == k])) for k in np.unique(sessions))
+
+
+def _wander_note(wander: dict[str, Any]) -> str:
+    parts = []
+    for s in ("gyro", "accel"):
+        if s in wander:
+            sig = max(wander[s]["sigma"])
+            tau = max((v for v in wander[s]["tau_s"] if v is not None), default=None)
+            parts.append(
+                f"{s} {sig:.3g} (output units)"
+                + ("" if tau is None else f", correlation time {tau / 3600:.3g} h")
+            )
+    return (
+        "the windows share a bias wander ("
+        + "; ".join(parts)
+        + f", {wander.get('source', 'given')}): the fit and its 1-sigma carry it (noise_model)"
+    )
 
 
 def check_design(
@@ -1025,7 +1188,10 @@ def calibrate(
         problem, theta, evaluations = fixed.problem, fixed.theta, evaluations + fixed.evaluations
         convergence = fixed.convergence
     else:
-        convergence = swarm_convergence(problem, theta, theta0, typical, info_min, opt.method)
+        assert mcs is not None
+        # the gap to LM's minimum within the Monte Carlo mean's own sampling error
+        convergence = swarm_convergence(problem, theta, theta0, typical, info_min, opt.method,
+                                        mcs.runs, mcs.pairs, report.basis)  # fmt: skip
         evaluations += convergence.pop("evaluations", 0)
     step()
     solved = report
@@ -1060,6 +1226,15 @@ def calibrate(
             report = replace(solved, verdict=report.verdict, message=report.message)
         else:
             report = solved
+    # bias wander between the windows: their residuals share noise the closer they are in time
+    noise_model: dict[str, Any] = {}
+    if opt.wander is not None and problem.noise_known and problem.window_invariants:
+        problem, theta, noise_model, more = _with_wander(
+            problem, theta, theta0, typical, report, opt
+        )
+        evaluations += more
+        if noise_model.get("wander"):
+            notes.append(_wander_note(noise_model["wander"]))
     # held means held: a coefficient no estimated coordinate touches is the prior, bitwise
     theta = np.where(report.estimated, theta, theta0)
     T = typical[:, None] * report.basis
@@ -1119,6 +1294,8 @@ def calibrate(
         covariance_measurement=cov_measurement,
         held_uncertainty=held_sigma,
         convergence=convergence,
+        noise_model=noise_model,
+        turn_closure_declared_deg=max(float(opt.turn_closure_sigma_deg), 0.0),
         observability=report,
         problem=problem,
         theta=theta,

@@ -51,6 +51,10 @@ class MCSResult:
     history: np.ndarray  # (R, total iterations + 1) best-so-far objective along all phases
     evaluations: int
     cycles: int
+    #: (P, 2) row indices in ``runs`` of the antithetic pairs (each pair's data perturbed by
+    #: opposite noise, :func:`recal.solve.surrogate.data_noise`), or None when the runs are
+    #: independent (no perturbation); a batch's odd last run belongs to no pair
+    pairs: np.ndarray | None = None
 
 
 def _phase_objective(problem: Problem | SurrogateProblem, base: np.ndarray, transform: np.ndarray):
@@ -229,6 +233,11 @@ def run_mcs(
          for o in outcomes]
     )  # fmt: skip
     all_runs = np.concatenate([o.final for o in outcomes])
+    pairs = None
+    if job.perturb:  # data_noise pairs rows (0, 1), (2, 3), ... within each batch
+        starts = np.cumsum((0,) + job.sizes[:-1])
+        first = np.concatenate([o + np.arange(0, s - 1, 2) for o, s in zip(starts, job.sizes)])
+        pairs = np.stack([first, first + 1], axis=1).astype(int)
     std = all_runs.std(axis=0, ddof=1) if runs > 1 else np.zeros(all_runs.shape[1])
     return MCSResult(
         all_runs,
@@ -238,4 +247,5 @@ def run_mcs(
         history,
         sum(o.evaluations for o in outcomes),
         max(o.cycles for o in outcomes),
+        pairs,
     )

@@ -24,25 +24,34 @@ from functools import cached_property
 import numpy as np
 
 from recal.detect.slews import (
-    TURN_CLOSURE_SIGMA_DEG,
     ClosedTurns,
+    HeadingCheck,
     KnownRotations,
     Slews,
+    TurnCandidate,
+    closed_turns_of,
     closure_residuals,
     closure_sigma,
-    find_closed_turns,
     horizontal_basis,
     integrated_rotvec,
     rotation_residuals,
     rotation_sigma,
     slew_residuals,
     slew_sigma,
+    turn_candidates,
 )
 from recal.errors import RecalInputError
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.positions import GYRO_STD_COLUMNS, Positions
 from recal.model.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 from recal.model.terms import Term
+from recal.solve.wander import (
+    WanderModel,
+    wander_covariance,
+    whitener,
+    window_sessions,
+    window_times,
+)
 
 #: Residual sigma used before any noise information exists (positions without *_std or *_sem
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
@@ -94,8 +103,12 @@ class Problem:
             window (at the prior) on which the residual is taken.
         closed_turns: slews taken as whole turns about the vertical (:class:`ClosedTurns`,
             found at the prior by :meth:`build`): the "closure" invariant, 1 residual each, rad.
+        turn_candidates: every slew that integrates close to whole turns about the vertical,
+            with what was decided and why (:class:`recal.detect.slews.TurnCandidate`).
         slew_excess_rad: an unmodelled error per slew residual added in quadrature to its sigma
             (estimated from the slews' misfit by :func:`recal.solve.calibrate.slew_excess`), rad.
+        wander, wander_cov: the triads' bias wander between windows and the covariance it adds
+            to the window residuals (:meth:`with_wander`); :meth:`residuals` whitens by it.
     """
 
     positions: Positions
@@ -111,7 +124,13 @@ class Problem:
     slew_basis: np.ndarray | None = None
     known_rotations: KnownRotations | None = None
     closed_turns: ClosedTurns | None = None
+    turn_candidates: tuple[TurnCandidate, ...] = ()
     slew_excess_rad: float = 0.0
+    #: bias wander between windows (:mod:`recal.solve.wander`) and the (Rw, Rw) covariance it
+    #: adds to the window invariants' residuals (gyro norm, accel norm, dot: the first Rw of
+    #: :meth:`residuals`), set by :meth:`with_wander`; None: windows independent
+    wander: WanderModel | None = None
+    wander_cov: np.ndarray | None = None
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -126,18 +145,23 @@ class Problem:
         slews: Slews | None = None,
         slew_earth_rate: bool = True,
         known_rotations: KnownRotations | None = None,
-        turn_closure_sigma_deg: float = TURN_CLOSURE_SIGMA_DEG,
+        turn_closure_sigma_deg: float = 0.0,
         slew_excess_rad: float = 0.0,
+        gyro_prior_sigma: Mapping[str, np.ndarray] | None = None,
     ) -> Problem:
         """Check the columns the models need, build the context and the noise floors.
 
         ``theta_ref`` (the prior) is used to propagate the window noise to the invariants and
         to estimate the specific force seen by a gyro g-sensitivity term. ``slews`` add the slew
         invariant when both triads are calibrated (they are ignored otherwise). Slews that are
-        closed turns at ``theta_ref`` (:func:`recal.detect.slews.find_closed_turns`; none with a
-        commanded rotation) add the "closure" invariant, 1 residual each with the heading
-        closure ``turn_closure_sigma_deg`` (<= 0: no closed turns assumed). ``slew_excess_rad``
-        is added in quadrature to every slew residual's sigma (an unmodelled per-slew error).
+        closed turns at ``theta_ref`` (:func:`recal.detect.slews.turn_candidates`; none with a
+        commanded rotation) add the "closure" invariant, 1 residual each: checked by the two
+        windows' Earth-rate headings (at ``theta_ref``, with the gyro's prior 1-sigma
+        ``gyro_prior_sigma``: "gyro.bias" deg/h and "gyro.scale" in the scale's units, (3,)
+        each; None: the terms' typical changes), or, where the heading is not observable,
+        declared with the 1-sigma ``turn_closure_sigma_deg`` (<= 0: none declared).
+        ``slew_excess_rad`` is added in quadrature to every slew residual's sigma (an
+        unmodelled per-slew error).
         """
         sensors = [m.sensor for m in models]
         for s in sensors:
@@ -196,10 +220,27 @@ class Problem:
             known = np.zeros(len(slews), bool)
             if prob.known_rotations is not None:
                 known = np.isin(slews.first, prob.known_rotations.slew)
-            turns = find_closed_turns(slews, rv, f[slews.first], f[slews.second],
-                                      turn_closure_sigma_deg, known)  # fmt: skip
-            prob = replace(prob, closed_turns=turns, slew_excess_rad=float(slew_excess_rad))
+            check = prob._heading_check(theta, f, gyro_prior_sigma)
+            found = turn_candidates(slews, rv, f[slews.first], f[slews.second],
+                                    turn_closure_sigma_deg, known, check)  # fmt: skip
+            prob = replace(prob, closed_turns=closed_turns_of(found, f[slews.first]),
+                           turn_candidates=tuple(found), slew_excess_rad=float(slew_excess_rad))  # fmt: skip
         return prob.with_sigma(*prob.propagated_sigma(theta))
+
+    def _heading_check(
+        self, theta: np.ndarray, force: np.ndarray, prior_sigma: Mapping[str, np.ndarray] | None
+    ) -> HeadingCheck:
+        """What the Earth-rate heading check of the closed turns needs, at ``theta``."""
+        sl = self.layout.term_slices()
+        rate = self.physical(theta[None])["gyro"][0]
+        scale = np.maximum(np.abs(theta[sl["gyro.scale"]]), 1e-300)
+        sem = self.positions.std_of_mean("gyro")
+        sigma = dict(prior_sigma or {})
+        typical = self.layout.typical(theta)
+        bias = np.asarray(sigma.get("gyro.bias", typical[sl["gyro.bias"]]), float)
+        rel = np.asarray(sigma.get("gyro.scale", typical[sl["gyro.scale"]]), float) / scale
+        return HeadingCheck(rate, force, None if sem is None else sem / scale,
+                            self.latitude_deg, bias, rel, self.slew_earth_rate)  # fmt: skip
 
     def _specific_force(self, theta: np.ndarray) -> np.ndarray:
         if "accel" in self.sensors:
@@ -417,9 +458,63 @@ class Problem:
         return {n: v - self.reference(n) for n, v in vals.items()}
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
-        """Whitened residuals (P, R), R = M x number of invariants, for least squares."""
+        """Whitened residuals (P, R), R = M x number of invariants, for least squares. With a
+        bias wander (:meth:`with_wander`) the window invariants are whitened together by the
+        inverse Cholesky factor of their full covariance (a generalised least squares)."""
         raw = self.raw_residuals(theta)
-        return np.concatenate([raw[n] / self.sigma[n] for n in self.invariant_names], axis=1)
+        parts = [raw[n] / self.sigma[n] for n in self.invariant_names]
+        W = self._whitener
+        if W is None:
+            return np.concatenate(parts, axis=1)
+        k = len(self.window_invariants)
+        return np.concatenate([np.concatenate(parts[:k], axis=1) @ W.T, *parts[k:]], axis=1)
+
+    @property
+    def window_invariants(self) -> tuple[str, ...]:
+        """The invariants with one residual per window (gyro norm, accel norm, dot product)."""
+        return tuple(n for n in self.invariant_names if n in ("gyro_norm", "accel_norm", "dot"))
+
+    def window_sigma(self) -> np.ndarray:
+        """(Rw,) the window residuals' own 1-sigma, in the order of :meth:`residuals`."""
+        return np.concatenate([self.sigma[n] for n in self.window_invariants])
+
+    @cached_property
+    def _whitener(self) -> np.ndarray | None:
+        if self.wander_cov is None:
+            return None
+        return whitener(self.window_sigma(), self.wander_cov)
+
+    def wander_sensitivity(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """sensor -> (Rw, M, 3): d (window residual) / d (output of each window's axis) at
+        ``theta``, in the order of :meth:`residuals`' window part (zero off its own window)."""
+        x = {k: v[0] for k, v in self.physical(np.atleast_2d(theta)).items()}
+        gains = self._output_gains(np.asarray(theta, float), x)
+        blocks: dict[str, list[np.ndarray]] = {s: [] for s in self.sensors}
+        M = self.M
+        for n in self.window_invariants:
+            rows = self.rows_of(n)
+            for s in self.sensors:
+                g = np.zeros((len(rows), M, 3))
+                d = None
+                if n == f"{s}_norm":
+                    v = x[s][rows]
+                    d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+                elif n == "dot":
+                    d = x["accel" if s == "gyro" else "gyro"][rows]
+                if d is not None:
+                    g[np.arange(len(rows)), rows] = d / gains[s][rows]
+                blocks[s].append(g)
+        return {s: np.concatenate(b, axis=0) for s, b in blocks.items()}
+
+    def with_wander(self, model: WanderModel | None, theta: np.ndarray) -> Problem:
+        """The problem with ``model``'s bias wander between windows (at ``theta``'s gains);
+        None or an empty model: windows independent again."""
+        if model is None or model.empty or not self.window_invariants:
+            return replace(self, wander=None, wander_cov=None)
+        t = window_times(self.positions.columns, self.M)
+        sessions = window_sessions(self.positions.columns, self.M)
+        cov = wander_covariance(self.wander_sensitivity(theta), t, model, sessions)
+        return replace(self, wander=model, wander_cov=cov)
 
     def squared_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Seed eq. (13): |x_hat|^2 - ref^2 per position (P, M); the dot product stays linear."""
@@ -468,23 +563,14 @@ class Problem:
         re-estimates the noise from the residuals (:meth:`with_sigma_from_residuals`).
         """
         x = {k: v[0] for k, v in self.physical(theta[None]).items()}
-        sl = self.layout.model_slices()
         sd_in: dict[str, np.ndarray | None] = {}
-        gains: dict[str, np.ndarray] = {}
+        gains = self._output_gains(theta, x)
         kind: dict[str, str] = {}
         for m in self.models:
             sd = self.positions.std_of_mean(m.sensor)
             kind[m.sensor] = COLUMN_SOURCES.get(self.positions.noise_source(m.sensor) or "", "")
             if sd is not None:
-                # output noise -> input units through the local gain d N / d x ~ K_eff
-                step = np.abs(x[m.sensor]) * 1e-6 + 1e-9
-                th = theta[None, sl[m.sensor]]
-                gain = (
-                    m.forward(th, x[m.sensor] + step, self.ctx)[0]
-                    - m.forward(th, x[m.sensor], self.ctx)[0]
-                ) / step
-                gains[m.sensor] = np.maximum(np.abs(gain), 1e-300)
-                sd = sd / gains[m.sensor]
+                sd = sd / gains[m.sensor]  # output noise -> input units
             sd_in[m.sensor] = sd
         out, source = {}, {}
         for n in self.invariant_names:
@@ -515,6 +601,22 @@ class Problem:
                 var = np.sum(u**2 * sd_in[needed[0]] ** 2, axis=1)
             out[n] = np.sqrt(np.maximum(var[self.rows_of(n)], 1e-300))
         return out, source
+
+    def _output_gains(
+        self, theta: np.ndarray, x: Mapping[str, np.ndarray]
+    ) -> dict[str, np.ndarray]:
+        """sensor -> (M, 3) local gain d N / d x (output per input unit, ~ K_eff) at ``theta``."""
+        sl = self.layout.model_slices()
+        gains = {}
+        for m in self.models:
+            step = np.abs(x[m.sensor]) * 1e-6 + 1e-9
+            th = theta[None, sl[m.sensor]]
+            gain = (
+                m.forward(th, x[m.sensor] + step, self.ctx)[0]
+                - m.forward(th, x[m.sensor], self.ctx)[0]
+            ) / step
+            gains[m.sensor] = np.maximum(np.abs(gain), 1e-300)
+        return gains
 
     def _rotation_sigma(
         self, sd_in: dict[str, np.ndarray | None], gains: dict[str, np.ndarray]
@@ -559,7 +661,8 @@ class Problem:
         keep = {n for n in self.sigma_source if not self.noise_known_for(n)}
         sigma = {n: (self.sigma[n] if n in keep else v) for n, v in sigma.items()}
         source = {n: (self.sigma_source[n] if n in keep else v) for n, v in source.items()}
-        return prob.with_sigma(sigma, source)
+        prob = prob.with_sigma(sigma, source)
+        return prob.with_wander(self.wander, theta) if self.wander is not None else prob
 
     def with_sigma_from_residuals(self, theta: np.ndarray, n_params: int) -> Problem:
         """Replace every sigma not known from noise columns by the dof-corrected residual RMS."""

@@ -93,10 +93,61 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
         metavar="DEG",
         type=float,
         default=None,
-        help="1-sigma, deg, of the heading closure of a closed turn (a slew that turns whole "
-        "revolutions about the vertical and comes back to the same tilt: taken as exactly k x "
-        "360 deg; default 0.1); 0 assumes none (docs/engine.md)",
+        help="declare that slews which turn whole revolutions about the vertical and come back "
+        "to the same tilt close exactly (k x 360 deg), with this 1-sigma in deg (e.g. 0.1 for "
+        "turns put back against a table edge); default 0: none declared, a turn is closed only "
+        "where the Earth-rate headings of its two windows check it (a FOG; docs/engine.md)",
     )
+    add_wander_argument(p)
+
+
+def add_wander_argument(p: argparse.ArgumentParser) -> None:
+    """``--wander``: the bias wander between windows (recal.solve.wander)."""
+    p.add_argument(
+        "--wander",
+        metavar="auto|none|FILE.json",
+        default="auto",
+        help="bias wander between windows, which share noise the closer they are in time: "
+        "auto (default: estimated from the fit's residuals with the windows' start_s/end_s, "
+        "kept when a likelihood-ratio test says so), none (windows independent), or a JSON "
+        "file with a 'wander' block (recal noise --json, or calibrate's noise_model)",
+    )
+
+
+def wander_option(value: str | None):
+    """``--wander`` as CalibrationOptions.wander."""
+    import json
+    from pathlib import Path
+
+    from recal.errors import RecalInputError
+    from recal.solve.wander import WanderModel
+
+    if value in (None, "none"):
+        return None
+    if value == "auto":
+        return "auto"
+    path = Path(value)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise RecalInputError(f"--wander {value}: {exc.strerror or exc}") from exc
+    except json.JSONDecodeError as exc:
+        raise RecalInputError(f"--wander {value}: not JSON ({exc})") from exc
+    block = data.get("wander") if isinstance(data, dict) else None
+    if block is None and isinstance(data, dict):
+        block = (data.get("noise_model") or {}).get("wander")
+    if isinstance(data, dict) and "wander" in data and data["wander"] is None:
+        raise RecalInputError(
+            f"--wander {value}: the file holds no wander model (recal noise found none: some "
+            "axis's Allan deviation still falls at the longest averaging time, so its wander is "
+            "slower than the recording shows); use auto or none"
+        )
+    if not isinstance(block, dict):
+        raise RecalInputError(
+            f"--wander {value}: no 'wander' block (expected recal noise --json output or "
+            "calibrate's noise_model); use auto or none"
+        )
+    return WanderModel.from_json_dict(block, source=f"given ({path.name})")
 
 
 def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOptions:
@@ -145,12 +196,13 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
         paper=args.paper,
         polish=args.polish,
         swarm_config=swarm,
+        wander=wander_option(getattr(args, "wander", None)),
     )
 
 
 def _turn_closure(args: argparse.Namespace) -> dict[str, float]:
-    """``--turn-closure DEG`` as CalibrationOptions.turn_closure_sigma_deg (not given: the
-    engine's default)."""
+    """``--turn-closure DEG`` as CalibrationOptions.turn_closure_sigma_deg: the declared closed
+    turns' 1-sigma (not given or 0: none declared, only turns checked by Earth rate)."""
     from recal.errors import RecalInputError
 
     value = getattr(args, "turn_closure", None)

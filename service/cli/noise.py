@@ -102,10 +102,13 @@ def run(args: argparse.Namespace) -> int:
 
         names = " ".join(Path(p).name for p in args.inputs)
         atomic_write(report_path, report_html(result, f"recal noise {names}"))
+    result["wander"] = wander_block(result["axes"])
     if args.json:
         print(json.dumps(_public(result)))
     else:
         print(text_summary(result))
+        if result["wander"]:
+            print(wander_line(result["wander"]))
     if report_path:
         print(f"recal noise: wrote the report to {report_path}", file=sys.stderr)
     return 0
@@ -205,6 +208,48 @@ def summarize(segments, rate_hz: float, triads, units) -> dict[str, Any]:
         model = np.sqrt(summary.model.avar(curve.m.astype(float)))
         plots.append((name, curve.tau_s, curve.adev[:, c], lo, hi, model, summary))
     return {"axes": axes, "_plots": plots}
+
+
+#: A Gauss-Markov process's Allan deviation peaks at an averaging time of about 1.89 tau.
+GM_ALLAN_PEAK = 1.89
+
+
+def wander_block(axes: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The bias wander between windows that ``recal calibrate --wander FILE`` takes
+    (recal.solve.wander), per triad with all three axes: the Gauss-Markov part of the fit where
+    it is significant, else the bias instability with a correlation time of its averaging time
+    / 1.89 (where a Gauss-Markov process's Allan deviation peaks); none where neither is known
+    (the curve still falls: the wander is slower than the recording shows)."""
+    out: dict[str, Any] = {"kind": "gauss-markov", "source": "recal noise (still stretches)"}
+    for triad in ("gyro", "accel"):
+        rows = [a for a in axes if a["name"].startswith(triad + "_")]
+        if len(rows) != 3:
+            continue
+        sigma, tau = [], []
+        for a in rows:
+            if a.get("gauss_markov_sigma") and a.get("correlation_time_s"):
+                sigma.append(a["gauss_markov_sigma"])
+                tau.append(a["correlation_time_s"])
+            elif not a.get("bias_instability_upper_bound") and a.get("bias_instability"):
+                sigma.append(a["bias_instability"])
+                tau.append(a["bias_instability_tau_s"] / GM_ALLAN_PEAK)
+            else:
+                break
+        else:
+            out[triad] = {"sigma": sigma, "tau_s": tau}
+    return out if ("gyro" in out or "accel" in out) else None
+
+
+def wander_line(wander: dict[str, Any]) -> str:
+    parts = [
+        f"{t}: sigma {max(wander[t]['sigma']):.3g}, tau {max(wander[t]['tau_s']):.3g} s"
+        for t in ("gyro", "accel")
+        if t in wander
+    ]
+    return (
+        "bias wander between windows (Gauss-Markov; recal calibrate --wander FILE takes this "
+        "command's --json output): " + "; ".join(parts)
+    )
 
 
 def _public(result: dict[str, Any]) -> dict[str, Any]:

@@ -121,3 +121,42 @@ def test_allowed_origins_are_checked(tmp_path):
     assert ok.api.allowed_origins == ["http://console.local:8080", "https://[fe80::1]"]
     with pytest.raises(RecalInputError, match="api.allowed_origins: 'console.local' is not"):
         load_settings(api={"allowed_origins": ["console.local"]})
+
+
+# ---- declared closed turns --------------------------------------------------------------------
+
+
+def test_turn_closure_is_off_by_default_and_reaches_the_jobs(tmp_path):
+    """[scheduler] turn_closure_deg: 0 (no declared closed turns, only turns Earth rate checks)
+    unless set; the scheduler's jobs get it as CalibrationOptions.turn_closure_sigma_deg."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from recal.model.coefficients import CoefficientSet
+    from recal.sim.simulate import simulate_positions
+    from service.db import Store
+    from service.scheduler import Scheduler
+
+    assert load_settings().scheduler.turn_closure_deg == 0.0
+    cfg = tmp_path / "recal.toml"
+    cfg.write_text("[scheduler]\nturn_closure_deg = 0.1\nuse_slews = false\n")
+    settings = load_settings(cfg)
+    assert settings.scheduler.turn_closure_deg == 0.1
+    with pytest.raises(RecalInputError, match="turn_closure_deg"):
+        load_settings(cfg, scheduler={"turn_closure_deg": -1.0})
+
+    seed = CoefficientSet.seed_truth().values
+    unit = {n: np.ones(3) if n.endswith("scale") else np.zeros_like(v) for n, v in seed.items()}
+    positions = simulate_positions(CoefficientSet(unit), seed=1)  # a KVH: deg/h and g
+    store = Store(f"sqlite:///{tmp_path / 'recal.db'}")
+    store.create_schema()
+    store.add_positions(store.add_session("test"), positions.columns)
+    submitted = []
+    runner = SimpleNamespace(busy=False, submit=lambda fn, args, on_end: submitted.append(args))
+    events = SimpleNamespace(emit=lambda *a, **k: None)
+    Scheduler(store, settings, None, events=events, runner=runner).trigger("manual")
+    (args,) = submitted
+    assert args[1].turn_closure_sigma_deg == 0.1
+    assert args[1].wander == "auto"  # [scheduler] wander's default reaches the job too
+    assert np.all(args[0]["session"] == 1)  # and the session of each window (clocks restart)
