@@ -1148,6 +1148,9 @@ def calibrate(
         theta = theta_fit
     else:
         if opt.paper:
+            # the seed's objective (eq. 14 per invariant over its noise floor); by default the
+            # swarm minimises the least squares LM does (recal.solve.problem.Problem.objective)
+            problem = replace(problem, paper_objective=True)
             phases = paper_phases(layout, typical)
         else:
 

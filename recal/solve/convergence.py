@@ -42,11 +42,13 @@ once in a thousand calibrations):
 The old rule (the gap over sqrt(k) below 0.5 sigma: 2.45 sigma in total at k = 24) accepted a
 swarm stopped after one cycle of 8 iterations 0.86 sigma short over 9 directions, whose mean's
 sampling error was 0.25 sigma (T^2 125 against 43; ``tests/recal/test_convergence_swarm.py``).
-When the test fails, the swarm's own objective (:meth:`recal.solve.problem.Problem.objective`,
-seed 000 eq. 14 per invariant over one noise floor) says why: lower at LM's minimum, the swarm
-stopped short; lower at the swarm's answer, the two objectives have different minima (they
-weigh the residuals differently: with slews about half a sigma apart, which no number of runs
-or iterations closes; ``--polish`` gives the least-squares one).
+When the test fails, the swarm's own objective (:meth:`recal.solve.problem.Problem.objective`)
+says why: lower at LM's minimum, the swarm stopped short. By default that objective is the
+least squares LM minimises (chi^2 / (R - 1)), so the two share their minimum; with ``--paper``
+it is seed 000 eq. 14 per invariant over one noise floor, which weighs the residuals
+differently: lower at the swarm's answer, the two objectives have different minima (with
+slews about half a sigma apart, which no number of runs or iterations closes; ``--polish``
+gives the least-squares one).
 """
 
 from __future__ import annotations
@@ -244,25 +246,28 @@ def swarm_convergence(
             "antithetic pair) there is no spread to tell the Monte Carlo sampling error "
             "from a swarm that stopped short (use more --mc runs, or --polish)"))  # fmt: skip
     else:
-        # which minimum is lower by the swarm's own objective (eq. 14 per invariant over its
-        # noise floor, recal.solve.problem.Problem.objective)? LM's: the swarm stopped short of
-        # it; the swarm's answer: the two objectives weigh the residuals differently and their
-        # minima differ (with slews, by about half a sigma), however long the swarm searches
+        # which minimum is lower by the swarm's own objective (recal.solve.problem.Problem.
+        # objective: the least squares, or with --paper eq. 14 per invariant over its noise
+        # floor)? LM's: the swarm stopped short of it; the swarm's answer: with eq. 14 the two
+        # objectives weigh the residuals differently and their minima differ (with slews, by
+        # about half a sigma), however long the swarm searches
         f_answer, f_lm = problem.objective(np.stack([theta, lm.theta]))
         out["swarm_objective"] = {"answer": float(f_answer), "lm_minimum": float(f_lm)}
         beyond = (f"beyond its Monte Carlo sampling error ({test['name']} "
                   f"{test['statistic']:.3g} > {test['threshold']:.3g} over {test['directions']} "
                   f"directions, {test['samples']} independent samples of {test['runs']} runs, "
                   f"false-rejection rate {FALSE_REJECTION:g})")  # fmt: skip
-        why = (
-            "the swarm stopped short (use --polish or more --iterations)"
-            if f_lm < f_answer
-            else "the swarm's own objective is lower at its answer than there: the swarm's "
-            "objective (seed 000 eq. 14, each invariant's squared residuals over their count "
-            "and one noise floor) and the least squares LM minimises (each residual over its "
-            "own sigma) have different minima (use --polish for the least-squares one, whose "
-            "covariance is reported)"
-        )
+        if f_lm < f_answer:
+            why = "the swarm stopped short (use --polish or more --iterations)"
+        elif problem.paper_objective:
+            why = ("the swarm's own objective is lower at its answer than there: the swarm's "
+                   "objective (seed 000 eq. 14, each invariant's squared residuals over their "
+                   "count and one noise floor) and the least squares LM minimises (each "
+                   "residual over its own sigma) have different minima (use --polish for the "
+                   "least-squares one, whose covariance is reported)")  # fmt: skip
+        else:
+            why = ("the least squares the swarm minimised is no lower at LM's minimum than at "
+                   "its answer: a flat valley LM stopped in at its tolerance (use --polish)")  # fmt: skip
         out.update(converged=False, reason=(
             f"the {method} answer is {test['gap_sigma']:.2g} sigma from the minimum LM finds "
             f"from it, {beyond}: {why}"))  # fmt: skip

@@ -77,7 +77,8 @@ def whitened_phase(
     y with theta = theta + (typical * basis) W S^-1 y, so chi^2 ~ chi^2_min + |y - y*|^2.
     The initial Visual is ``visual_sigmas`` x the typical change expressed in those units (s),
     capped per run by the distance the current objective allows: the swarm objective is
-    ~chi^2 / (M - 1), so |y - y*| <= sqrt((M - 1) * objective).
+    chi^2 / (R - 1) (the least squares; ~chi^2 / (M - 1) for eq. 14,
+    :attr:`recal.solve.problem.Problem.objective_dof`), so |y - y*| <= sqrt(dof * objective).
     """
     T = typical[:, None] * report.basis
     J = jacobian(problem, theta, T.T)
@@ -90,6 +91,6 @@ def whitened_phase(
     transform *= np.sign(transform[lead, np.arange(transform.shape[1])])
     visual = visual_sigmas * np.maximum(s, 1.0)
     if objective_now is not None:
-        radius = 1.5 * np.sqrt(max(problem.M - 1, 1) * np.asarray(objective_now, float))
+        radius = 1.5 * np.sqrt(problem.objective_dof * np.asarray(objective_now, float))
         visual = np.minimum(visual[None, :], np.maximum(radius, 1.0)[:, None])
     return Phase("observable (whitened)", transform, visual)

@@ -131,6 +131,10 @@ class Problem:
     #: :meth:`residuals`), set by :meth:`with_wander`; None: windows independent
     wander: WanderModel | None = None
     wander_cov: np.ndarray | None = None
+    #: the swarm objective (:meth:`objective`): False (the default) the least squares LM
+    #: minimises, chi^2 / (R - 1); True seed 000 eq. (14) per invariant over its noise floor
+    #: (``--paper``)
+    paper_objective: bool = False
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -543,16 +547,54 @@ class Problem:
             out[n] = float(np.sqrt(np.mean((scale * s) ** 2)))
         return out
 
-    def objective(self, theta: np.ndarray) -> np.ndarray:
-        """The swarm objective (P,): sum over invariants of (eq. 14 indicator / its noise floor)^2.
+    @property
+    def objective_dof(self) -> int:
+        """chi^2 = :meth:`objective` x this, near the minimum: R - 1 for the least squares; for
+        eq. (14) (one noise floor per invariant) about M - 1."""
+        return max((self.M if self.paper_objective else self.n_residuals) - 1, 1)
 
-        With one triad this is eq. (14) squared up to a constant, so it has the same minimiser;
-        with both it weighs the gyro, accel and dot invariants by their noise.
+    def objective(
+        self, theta: np.ndarray, offsets: Mapping[str, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """The swarm objective (P,).
+
+        Default: the least squares LM minimises, sum of squared :meth:`residuals` over (R - 1)
+        (~chi2_red), so a swarm and LM share their minimum. With ``paper_objective``: the sum
+        over invariants of (eq. 14 indicator / its noise floor)^2 -- with one triad eq. (14)
+        squared up to a constant, with both it weighs the invariants by their noise, but each
+        invariant by one floor, so with slews its minimum is not the least-squares one.
+
+        ``offsets``: invariant -> (P, n) perturbation of the data of each row
+        (:func:`recal.solve.surrogate.data_noise`'s form: sigma eps for a linear invariant, 2 ref
+        sigma eps for a norm); the least squares adds the eps to the whitened residuals.
         """
+        if not self.paper_objective:
+            r = self.residuals(theta)
+            if offsets is not None:
+                r = r + self.whitened_offsets(offsets)
+            total = np.einsum("pr,pr->p", r, r) / max(self.n_residuals - 1, 1)
+            return np.where(np.isfinite(total), total, np.inf)
         floor = self._floor
-        ind = self.indicator(theta)
-        total = sum((ind[n] / floor[n]) ** 2 for n in self.invariant_names)
+        if offsets is None:
+            ind = self.indicator(theta)
+            total = sum((ind[n] / floor[n]) ** 2 for n in self.invariant_names)
+            return np.where(np.isfinite(total), total, np.inf)
+        total = 0.0
+        for n, sq in self.squared_residuals(theta).items():
+            sq = sq + offsets[n]
+            total = total + np.einsum("pm,pm->p", sq, sq) / (
+                max(self.n_of(n) - 1, 1) * floor[n] ** 2
+            )
         return np.where(np.isfinite(total), total, np.inf)
+
+    def whitened_offsets(self, offsets: Mapping[str, np.ndarray]) -> np.ndarray:
+        """(P, R) the eps of data perturbations in :func:`recal.solve.surrogate.data_noise`'s form,
+        in the order of :meth:`residuals` (each N(0, 1) whitened residual's offset)."""
+        parts = []
+        for n in self.invariant_names:
+            scale = 1.0 if n in _LINEAR else 2.0 * self.reference(n)
+            parts.append(offsets[n] / (scale * self.sigma[n]))
+        return np.concatenate(parts, axis=1)
 
     # ---- noise --------------------------------------------------------------------------
     def propagated_sigma(self, theta: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, str]]:

@@ -42,8 +42,14 @@ def motion_names(problem: Problem) -> tuple[str, ...]:
 
 
 def _motion_weights(problem: Problem, names: tuple[str, ...]) -> np.ndarray:
-    """sqrt of each motion residual's weight in :meth:`Problem.objective`:
-    (indicator / floor)^2 = sum r^2 / ((n - 1) floor^2) for a linear invariant."""
+    """sqrt of each motion residual's weight in :meth:`Problem.objective`: 1 / (sigma sqrt(R - 1))
+    for the least squares; with ``paper_objective``, (indicator / floor)^2 = sum r^2 / ((n - 1)
+    floor^2) for a linear invariant."""
+    if not problem.paper_objective:
+        dof = max(problem.n_residuals - 1, 1)
+        parts = [1.0 / (np.sqrt(dof) * np.broadcast_to(problem.sigma[n], (problem.n_of(n),)))
+                 for n in names]  # fmt: skip
+        return np.concatenate(parts) if parts else np.zeros(0)
     floor = problem.indicator_floor()
     parts = [
         np.full(problem.n_of(n), 1.0 / (np.sqrt(max(problem.n_of(n) - 1, 1)) * floor[n]))
@@ -143,8 +149,12 @@ class SurrogateProblem:
         return e + self._motion_noise(run)
 
     def _static_objective(self, theta: np.ndarray, run: np.ndarray | None) -> np.ndarray:
-        """:meth:`Problem.objective` of the static invariants, run ``run``'s noise added."""
-        return self._perturbed(self.static, theta, run)
+        """The static invariants' part of :meth:`Problem.objective`, run ``run``'s noise added
+        (the least squares: over the exact problem's R - 1, not the static one's)."""
+        f = self._perturbed(self.static, theta, run)
+        if self.static.paper_objective:
+            return f
+        return f * (self.static.objective_dof / self.exact.objective_dof)
 
     def objective(self, theta: np.ndarray, run: np.ndarray | None = None) -> np.ndarray:
         """:meth:`Problem.objective` with the motion part linearised, (P,); ``run`` (P,): the
@@ -157,17 +167,11 @@ class SurrogateProblem:
         return self._perturbed(self.exact, theta, run)
 
     def _perturbed(self, problem: Problem, theta: np.ndarray, run: np.ndarray | None) -> np.ndarray:
-        """``problem``'s objective with run ``run``'s noise added to its squared residuals."""
+        """``problem``'s objective on run ``run``'s perturbed data (:meth:`Problem.objective`)."""
         if self.noise is None or run is None:
             return problem.objective(theta)
-        floor = problem._floor
-        total = 0.0
-        for n, sq in problem.squared_residuals(theta).items():
-            sq = sq + self.noise[n][run]
-            total = total + np.einsum("pm,pm->p", sq, sq) / (
-                max(problem.n_of(n) - 1, 1) * floor[n] ** 2
-            )
-        return np.where(np.isfinite(total), total, np.inf)
+        names = problem.invariant_names
+        return problem.objective(theta, {n: self.noise[n][run] for n in names})
 
     def phase_objective(
         self, base: np.ndarray, transform: np.ndarray
