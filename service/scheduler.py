@@ -34,6 +34,7 @@ from service.triggers import (
     epoch_start,
     evaluate,
     stored_slews,
+    with_sessions,
 )
 
 log = logging.getLogger("recal.scheduler")
@@ -229,8 +230,7 @@ class Scheduler:
                 raise SchedulerRefused("; ".join(units))
             slews = stored_slews(self._store, positions, ids) if s.scheduler.use_slews else None
             # each session restarts the device clock: the wander correlates windows within one
-            cols = {**positions.columns, "session": self._store.sessions_of(ids)}
-            positions = Positions(columns=cols, source=positions.source)
+            positions = with_sessions(self._store, positions, ids)
             options = CalibrationOptions(
                 sensor=None if s.scheduler.sensor == "both" else s.scheduler.sensor,
                 method=s.scheduler.method,

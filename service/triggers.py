@@ -186,7 +186,7 @@ def windows_per_day(store: Any, settings: Settings) -> tuple[float, bool]:
     return count / span * 86400.0, True
 
 
-def _with_sessions(store: Any, positions: Positions, ids: list[int]) -> Positions:
+def with_sessions(store: Any, positions: Positions, ids: list[int]) -> Positions:
     """The windows with their ``session`` column (each session restarts the device clock)."""
     cols = {**positions.columns, "session": store.sessions_of(ids)}
     return Positions(columns=cols, source=positions.source)
@@ -207,7 +207,7 @@ def _drift(
     s = settings.scheduler
     # the accepted version's bias wander, so that wander between windows is not read as a step
     wander = ((getattr(current, "document", None) or {}).get("noise_model") or {}).get("wander")
-    positions = _with_sessions(store, positions, ids) if wander else positions
+    positions = with_sessions(store, positions, ids) if wander else positions
     inputs = drift_inputs(positions, coefficients, covariance, settings.site.latitude_deg,
                           settings.site.height_m, wander=wander)  # fmt: skip
     per_day, measured = windows_per_day(store, settings)

@@ -207,9 +207,9 @@ def drift_inputs(
     both = active[:, :, None] & active[:, None, :]
     noise = np.where(both, noise, np.eye(3))
     cov = coefficient_covariance(coefficients, layout, covariance, notes)
-    time_s = None
-    if "start_s" in positions.columns and "end_s" in positions.columns:
-        time_s = 0.5 * (positions.columns["start_s"] + positions.columns["end_s"])
+    from recal.solve.wander import window_times
+
+    time_s = window_times(positions.columns, M)
     if wander is not None:
         from recal.solve.wander import WanderModel, innovations, window_sessions
 
@@ -290,11 +290,6 @@ def _invariants(
     if len(sensors) == 2:
         out[..., 2] = np.einsum("pmi,pmi->pm", x["gyro"], x["accel"]) - dot_reference(lat, h)
     return out
-
-
-def _noise_cov(problem, theta: np.ndarray, x: dict[str, np.ndarray], sensors) -> np.ndarray:
-    """(M, 3, 3) covariance of the window residuals from each window's standard errors."""
-    return _noise_and_sensitivity(problem, theta, x, sensors)[0]
 
 
 def _noise_and_sensitivity(

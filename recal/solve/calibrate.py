@@ -997,7 +997,8 @@ def _with_wander(
     if isinstance(opt.wander, WanderModel):
         model = opt.wander
     elif opt.wander == "auto":
-        span = 0.0 if t is None else _longest_session_span(t, problem.positions.columns)
+        sessions = window_sessions(problem.positions.columns, problem.M)
+        span = 0.0 if t is None else _longest_session_span(t, sessions)
         if span < WANDER_MIN_SPAN_S or problem.window_sigma().size > WANDER_MAX_RESIDUALS:
             out["wander"] = None
             out["wander_test"] = (
@@ -1014,7 +1015,6 @@ def _with_wander(
         T = typical[:, None] * report.basis
         J = jacobian(problem, theta, T.T)[: len(r_std)]
         taus = [tau for tau in TAU_GRID_S if tau <= 2.0 * span]  # slower is a bias over the span
-        sessions = window_sessions(problem.positions.columns, problem.M)
         model, fits = estimate_wander(
             r_std, sigma_w, problem.wander_sensitivity(theta), t, taus=taus, jacobian=J,
             sessions=sessions,
@@ -1040,11 +1040,8 @@ def _with_wander(
     return problem, lm.theta, out, lm.evaluations
 
 
-def _longest_session_span(t: np.ndarray, columns: Any) -> float:
+def _longest_session_span(t: np.ndarray, sessions: np.ndarray | None) -> float:
     """The longest time the windows of one session span, s (sessions restart the clock)."""
-    from recal.solve.wander import window_sessions
-
-    sessions = window_sessions(columns, len(t))
     if sessions is None:
         return float(np.ptp(t))
     return max(float(np.ptp(t[sessions == k])) for k in np.unique(sessions))

@@ -247,9 +247,9 @@ def estimate_wander(
     fits: list[WanderFit] = []
     grid = list(taus) if t is not None else [0.0]
 
-    def against(base: np.ndarray) -> tuple[Any, float]:
-        """The restricted -log L of sigma^2 for a unit covariance added to ``base``, and its
-        value at sigma 0. With L L^T = I + B (B: base, standardised), I + B + s2 U =
+    def against(base: np.ndarray) -> Any:
+        """A maker: unit covariance -> the restricted -log L of sigma^2 (that unit covariance
+        times sigma^2 added to ``base``). With L L^T = I + B (B: base, standardised), I + B + s2 U =
         L (I + s2 W) L^T, W = L^-1 U L^-T = V diag(lam) V^T: one Cholesky per triad and one
         eigendecomposition per tau, then each sigma costs O(R k^2) (a golden-section search
         of 30 steps per tau: 200 windows in seconds, not minutes)."""
@@ -276,7 +276,7 @@ def estimate_wander(
 
             return f
 
-        return make, None
+        return make
 
     # two rounds over the triads: each fitted with the others' wander as last found (the
     # second only when the first found some: otherwise it would repeat the first exactly)
@@ -286,7 +286,7 @@ def estimate_wander(
         fits = []
         for s in sensitivity:
             others = WanderModel({k: v for k, v in found.items() if k != s})
-            make, _ = against(wander_covariance(sensitivity, t, others, sessions))
+            make = against(wander_covariance(sensitivity, t, others, sessions))
             n0 = None
             profile = []  # (nll, sigma, tau) per correlation time
             for tau in grid:
