@@ -205,8 +205,11 @@ def _drift(
     from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test
 
     s = settings.scheduler
-    # the accepted version's bias wander, so that wander between windows is not read as a step
-    wander = ((getattr(current, "document", None) or {}).get("noise_model") or {}).get("wander")
+    from recal.solve.wander import possible_wander
+
+    # the accepted version's bias wander (and the bound of what its windows could not show), so
+    # that wander between windows is not read as a step
+    wander = possible_wander((getattr(current, "document", None) or {}).get("noise_model"))
     positions = with_sessions(store, positions, ids) if wander else positions
     inputs = drift_inputs(positions, coefficients, covariance, settings.site.latitude_deg,
                           settings.site.height_m, wander=wander)  # fmt: skip

@@ -1022,7 +1022,8 @@ def _with_wander(
         out["wander_test"] = [
             {"sensor": f.sensor, "gain_2lnL": round(float(f.gain), 3), "threshold": WANDER_TEST,
              "significant": bool(f.significant), "sigma": float(f.sigma),
-             "tau_s": float(f.tau_s), "sigma_ml": float(f.sigma_ml), "tau_ml_s": float(f.tau_ml_s)}
+             "tau_s": float(f.tau_s), "sigma_ml": float(f.sigma_ml), "tau_ml_s": float(f.tau_ml_s),
+             **({} if f.joint_gain is None else {"joint_gain_2lnL": round(float(f.joint_gain), 3)})}
             for f in fits
         ]  # fmt: skip
     else:
@@ -1228,7 +1229,7 @@ def calibrate(
             report = solved
     # bias wander between the windows: their residuals share noise the closer they are in time
     noise_model: dict[str, Any] = {}
-    if opt.wander is not None and problem.noise_known and problem.window_invariants:
+    if opt.wander not in (None, "none") and problem.noise_known and problem.window_invariants:
         problem, theta, noise_model, more = _with_wander(
             problem, theta, theta0, typical, report, opt
         )

@@ -54,6 +54,15 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="W",
         help="windows searched for the change (default 30)",
     )
+    p.add_argument(
+        "--wander",
+        choices=("auto", "none"),
+        default="auto",
+        help="bias wander between windows: auto (default) takes the windows as innovations "
+        "under the wander the coefficients file's noise_model names (calibrate --json output; "
+        "its triads not kept at their bound), so that wander is not read as a step; none: "
+        "windows independent",
+    )
     p.add_argument("--report", metavar="OUT.html", help="write an HTML page: statistic vs time")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=run)
@@ -70,10 +79,13 @@ def run(args: argparse.Namespace) -> int:
     if args.latitude is None:
         print("recal: --latitude not given, assuming 45 deg (gravity and the dot product "
               "depend on it)", file=sys.stderr)  # fmt: skip
-    coefficients, covariance = _load(args.coefficients)
+    from recal.solve.wander import possible_wander
+
+    coefficients, covariance, noise_model = _load(args.coefficients)
     positions = load_positions(args.positions)
     lat = 45.0 if args.latitude is None else args.latitude
-    inputs = drift_inputs(positions, coefficients, covariance, lat, args.height)
+    wander = possible_wander(noise_model) if args.wander == "auto" else None
+    inputs = drift_inputs(positions, coefficients, covariance, lat, args.height, wander=wander)
     result = drift_test(inputs, DriftConfig(args.false_alarm_windows, args.lookback))
     out = to_json(inputs, result)
     if result.alarm_window is not None and result.alarm_window < EARLY_ALARM_ROWS:
@@ -95,20 +107,22 @@ def run(args: argparse.Namespace) -> int:
 
 def _load(path: str):
     """A coefficients file, or a ``calibrate --json`` output (its coefficients + uncertainty),
-    and its ``"covariance"`` block (names + matrix) when it has one."""
+    its ``"covariance"`` block (names + matrix) and ``"noise_model"`` when it has them."""
     from recal.errors import RecalInputError
     from recal.model.coefficient_schema import coefficients_block, parse_json
     from recal.model.coefficients import CoefficientSet
     from recal.model.terms import catalogue_terms
     from service.cli.common import read_text
 
-    data = coefficients_block(parse_json(read_text(path, "coefficients file"), path), path)
+    document = parse_json(read_text(path, "coefficients file"), path)
+    data = coefficients_block(document, path)
     cs = CoefficientSet.from_json_dict(data, catalogue_terms(), source=str(path))
     cs.metadata["source"] = str(path)
     covariance = data.get("covariance")
     if covariance is not None and not isinstance(covariance, dict):
         raise RecalInputError(f"{path}: 'covariance' must be an object with names and matrix")
-    return cs, covariance
+    noise_model = document.get("noise_model") if isinstance(document, dict) else None
+    return cs, covariance, noise_model if isinstance(noise_model, dict) else None
 
 
 def to_json(inputs, result) -> dict[str, Any]:
