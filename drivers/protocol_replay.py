@@ -187,6 +187,16 @@ class Serial(SerialBase):
         wait = min(wait, 0.05)
         return max(0.0, wait if left is None else min(wait, left))
 
+    def arrival_time(self) -> float:
+        """When the last byte delivered so far was due (host monotonic time): a replay is a
+        device with a schedule, so a byte arrives when it is due, not when a held-up reader
+        got round to it (a real port's bytes wait in the kernel the same way)."""
+        rate = self._options.byte_rate if self._options else None
+        now = time.monotonic()
+        if rate is None:
+            return now
+        return min(now, self._t0 + self._delivered / rate)
+
     @property
     def in_waiting(self) -> int:
         if not self.is_open:

@@ -9,6 +9,7 @@ now and then, and a port opened mid-stream starts inside one.
 from __future__ import annotations
 
 import logging
+import math
 import queue as queue_mod
 import threading
 import time
@@ -107,6 +108,7 @@ class FrameReader:
                     "port carries one stream"
                 )
         self._parser = parser
+        self._last_stamp = -math.inf  # the host time given to the last read's bytes
         self._lines = LineSplitter() if framing == "lines" else None
         self.lines_skipped = 0
         self.url = url
@@ -306,6 +308,27 @@ class FrameReader:
                 self._skip_reason = str(exc)
         return FrameBatch.concat(batches) if batches else FrameBatch.empty(self._parser.name)
 
+    def _arrival(self, port: serial.SerialBase, now: float) -> float:
+        """When the last byte of a read came off the wire: ``now`` less the wire time of the
+        bytes still waiting behind it (at the device's byte rate), never before the previous
+        read's. A reader held up (a loaded machine) drains the backlog in reads of at most
+        ``read_size``; dated ``now``, each would make the stall look like lost frames, and a
+        stall of 64 frame periods like a whole wrap of the 7-bit sequence number (128 frames
+        counted lost, time_s shifted, where nothing was lost). A replay (drivers.protocol_replay)
+        gives its own schedule, which stays right when it plays faster than the device."""
+        stamp = now
+        scheduled = getattr(port, "arrival_time", None)  # a replay knows when bytes were due
+        try:
+            if callable(scheduled):
+                stamp = float(scheduled())
+            elif self.byte_rate:
+                stamp = now - port.in_waiting / self.byte_rate
+        except (OSError, serial.SerialException):
+            stamp = now
+        stamp = max(stamp, self._last_stamp)
+        self._last_stamp = stamp
+        return stamp
+
     def _run(self) -> None:
         delay = self.backoff_initial
         try:
@@ -333,9 +356,10 @@ class FrameReader:
                     continue
                 delay = self.backoff_initial
                 now = time.monotonic()
+                stamp = self._arrival(port, now)
                 with self._lock:
                     self._last_byte_time = now
-                    batch = self._parse(data, now)
+                    batch = self._parse(data, stamp)
                     if len(batch):
                         self._last_frame_time = now
                 if len(batch):
