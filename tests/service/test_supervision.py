@@ -248,23 +248,54 @@ def test_start_republishes_what_a_crash_left_behind(tmp_path, make_record) -> No
         service.close(wait_s=0)
 
 
+def _catches_sigterm(pid: int) -> bool:
+    """Whether the process has installed a SIGTERM handler (SigCgt in /proc/PID/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = next(line for line in status.splitlines() if line.startswith("SigCgt:"))
+    return bool(int(caught.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+
+
+def _api_up(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
 def test_sigterm_during_start_exits_0(tmp_path, capture) -> None:
+    """SIGTERM while importing (before any handler: systemd counts death by SIGTERM as a clean
+    stop), the moment the handler is installed (loading and checking the settings), and once the
+    API answers (learning the noise floor). The phases are reached by watching the process, not
+    by fixed delays, which a loaded machine stretches past (it took over 2 s to import once)."""
+    api_port = _free_port()
     (tmp_path / "capture.bin").write_bytes(capture)
     (tmp_path / "recal.toml").write_text(
         f'database_url = "sqlite:///{tmp_path / "r.db"}"\npublish_path = "{tmp_path / "c.json"}"\n'
         f'[device]\nurl = "replay://{tmp_path / "capture.bin"}?speed=1&rate=100"\n'
-        f"rate_hz = 100\n[api]\nport = {_free_port()}\n"
+        f"rate_hz = 100\n[api]\nport = {api_port}\n"
     )
-    # while importing (before any handler: systemd counts death by SIGTERM as a clean stop),
-    # while loading and checking the settings, and while learning the noise floor
-    for delay in (0.3, 0.8, 2.0):
+    for phase in ("importing", "settings", "learning"):
         proc = subprocess.Popen(
             [sys.executable, "-m", "service.cli.main", "serve", "--config",
              str(tmp_path / "recal.toml")],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        time.sleep(delay)
+        deadline = time.monotonic() + 60
+        if phase == "importing":
+            time.sleep(0.05)
+        else:
+            ready = (lambda: _catches_sigterm(proc.pid)) if phase == "settings" else (
+                lambda: _api_up(api_port))  # fmt: skip
+            while not ready() and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.005)
+            assert proc.poll() is None, f"{phase}: the daemon ended before the signal"
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 0 or (delay < 0.5 and proc.returncode == -signal.SIGTERM), err
+        assert proc.returncode == 0 or (
+            phase == "importing" and proc.returncode == -signal.SIGTERM
+        ), (phase, err)
         assert "error" not in err.lower(), err
