@@ -288,8 +288,11 @@ def test_sigterm_during_start_exits_0(tmp_path, capture) -> None:
         if phase == "importing":
             time.sleep(0.05)
         else:
-            ready = (lambda: _catches_sigterm(proc.pid)) if phase == "settings" else (
-                lambda: _api_up(api_port))  # fmt: skip
+            pid = proc.pid
+
+            def ready(pid: int = pid, phase: str = phase) -> bool:
+                return _catches_sigterm(pid) if phase == "settings" else _api_up(api_port)
+
             while not ready() and proc.poll() is None and time.monotonic() < deadline:
                 time.sleep(0.005)
             assert proc.poll() is None, f"{phase}: the daemon ended before the signal"
