@@ -15,7 +15,8 @@ objects, so every piece can be used from a notebook. The subpackages follow the 
 The public API is the names of ``__all__``, importable from here: ``from recal import
 calibrate, CalibrationOptions, CoefficientSet, Term``. They are loaded on first use, so
 ``import recal`` stays fast. A public name keeps its signature within a major version (tests/
-test_public_api.py pins them). docs/api.md lists the names and the policy.
+test_public_api.py pins them); a module that moves keeps its old path for one minor release with
+a DeprecationWarning (recal._moved). docs/api.md lists the names and the policy.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ import importlib
 import sys
 import types
 from typing import Any
+
+from recal import _moved
 
 __version__ = "0.1.0"
 
@@ -102,8 +105,9 @@ class _Recal(types.ModuleType):
     """The package's module type: a public name is never replaced by a module of the same
     spelling. Importing a submodule binds it on its parent, so without this ``recal.diagnose``
     (the function) became the subpackage ``recal.diagnose`` after any ``import
-    recal.diagnose.drift``: ``from recal import diagnose`` depended on what was imported
-    before. Submodules stay importable by their full name (``sys.modules``)."""
+    recal.diagnose.drift``, and ``recal.calibrate`` the old module ``recal.calibrate`` after a
+    script imported that deprecated path: ``from recal import diagnose`` depended on what was
+    imported before. Submodules stay importable by their full name (``sys.modules``)."""
 
     def __setattr__(self, name: str, value: Any) -> None:
         if name in _API and isinstance(value, types.ModuleType):
@@ -112,3 +116,4 @@ class _Recal(types.ModuleType):
 
 
 sys.modules[__name__].__class__ = _Recal
+_moved.install()
