@@ -28,7 +28,9 @@ from typing import Any
 
 from recal import _moved
 
-__version__ = "0.1.0"
+#: The release, in semantic versions (CHANGELOG.md). The single source: pyproject.toml reads it
+#: from here (setuptools' static ``attr``, nothing imported), so it cannot disagree.
+__version__ = "0.2.0"
 
 #: Public name -> module that defines it, grouped as in docs/api.md.
 _API = {
