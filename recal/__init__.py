@@ -14,9 +14,9 @@ objects, so every piece can be used from a notebook. The subpackages follow the 
 
 The public API is the names of ``__all__``, importable from here: ``from recal import
 calibrate, CalibrationOptions, CoefficientSet, Term``. They are loaded on first use, so
-``import recal`` stays fast. A public name keeps its signature within a major version (tests/
-test_public_api.py pins them); a module that moves keeps its old path for one minor release with
-a DeprecationWarning (recal._moved). docs/api.md lists the names and the policy.
+``import recal`` stays fast. A public name keeps its signature within a major version
+(tests/test_public_api.py pins them); a module that moves keeps its old path for one minor
+release with a DeprecationWarning (recal._moved). docs/api.md lists the names and the policy.
 """
 
 from __future__ import annotations

@@ -80,7 +80,8 @@ MOVED_INTO_PACKAGE: dict[str, tuple[str, ...]] = {
 
 
 def message(old: str, name: str, home: str) -> str:
-    """The warning: what is deprecated, where ``name`` lives now, and when the old path goes."""
+    """The warning: what is deprecated (the old path, or ``old.name`` where the old path is now
+    a package, which itself stays), where ``name`` lives now, and when it goes."""
     import recal
 
     also = " (or recal)" if name in recal.__all__ else ""
@@ -125,24 +126,28 @@ def _own(value: Any, home: str) -> bool:
     return True
 
 
-def forward_old_names(old: str, homes: Sequence[str], star: bool = True) -> Callable[[str], Any]:
+def forward_old_names(
+    old: str, homes: Sequence[str], package: bool = False
+) -> Callable[[str], Any]:
     """A module ``__getattr__`` that serves the names of the old module ``old`` from ``homes``
     with a DeprecationWarning at the line that asked for them: each use warns, not the first
     import only, which happens once per process (a plugin file may be loaded again). Dunder
     names are never forwarded (the import system probes ``__path__`` and friends), except
-    ``__all__`` when ``star``: ``from old import *`` then gives the old names (not for a
-    package, whose star import stays its own)."""
+    ``__all__``: ``from old import *`` gives the old names, unless ``old`` is now a
+    ``package``, whose star import stays its own (and whose warning names ``old.name``: the
+    package is not deprecated, the old module's names in it are)."""
 
     def __getattr__(name: str) -> Any:
         if name.startswith("__"):
-            if name == "__all__" and star:
+            if name == "__all__" and not package:
                 return public_names(homes)
             raise AttributeError(f"module {old!r} has no attribute {name!r}")
         found = _find(name, homes)
         if found is None:
             raise AttributeError(f"module {old!r} has no attribute {name!r}")
         home, value = found
-        warnings.warn(message(old, name, home), DeprecationWarning, stacklevel=2)
+        subject = f"{old}.{name}" if package else old
+        warnings.warn(message(subject, name, home), DeprecationWarning, stacklevel=2)
         return value
 
     return __getattr__
