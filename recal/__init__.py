@@ -12,37 +12,79 @@ objects, so every piece can be used from a notebook. The subpackages follow the 
     recal.report    HTML and plot reports (only the command line and the service import it)
     recal.runtime   process-level concerns (allocator, worker processes)
 
-The names most scripts need are importable from here (loaded on first use, so ``import recal``
-stays fast): ``from recal import calibrate, CalibrationOptions, CoefficientSet``.
+The public API is the names of ``__all__``, importable from here: ``from recal import
+calibrate, CalibrationOptions, CoefficientSet, Term``. They are loaded on first use, so
+``import recal`` stays fast. A public name keeps its signature within a major version
+(tests/test_public_api.py pins them); a module that moves keeps its old path for one minor
+release with a DeprecationWarning (recal._moved). docs/api.md lists the names and the policy.
 """
 
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 from typing import Any
 
-__version__ = "0.1.0"
+from recal import _moved
 
-#: Public name -> module that defines it.
+#: The release, in semantic versions (CHANGELOG.md). The single source: pyproject.toml reads it
+#: from here (setuptools' static ``attr``, nothing imported), so it cannot disagree.
+__version__ = "0.2.0"
+
+#: Public name -> module that defines it, grouped as in docs/api.md.
 _API = {
+    # coefficients, positions, input errors
     "CoefficientSet": "recal.model.coefficients",
     "read_coefficients": "recal.model.coefficients",
     "Positions": "recal.model.positions",
     "RecalInputError": "recal.errors",
+    # error-model terms: what a plugin subclasses (recal.model.terms)
+    "Term": "recal.model.terms",
+    "Context": "recal.model.terms",
+    "ScaleTerm": "recal.model.terms",
+    "BiasTerm": "recal.model.terms",
+    "MisalignmentTerm": "recal.model.terms",
+    "QuadraticTerm": "recal.model.terms",
+    "ColumnBiasTerm": "recal.model.terms",
+    "TemperatureScaleTerm": "recal.model.terms",
+    "GSensitivityTerm": "recal.model.terms",
+    "ScaleAsymmetryTerm": "recal.model.terms",
+    "seed_terms": "recal.model.terms",
+    "catalogue_terms": "recal.model.terms",
+    # plugins: load and check a file of terms, simulate one as a hidden truth
+    "load_plugin_source": "recal.model.plugins",
+    "validate_terms": "recal.model.plugins",
+    "hidden_plugin": "recal.model.plugins",
+    # detection
     "StaticDetector": "recal.detect.static",
     "DetectorConfig": "recal.detect.static",
     "detect_static": "recal.detect.static",
     "windows_to_columns": "recal.detect.windows",
+    # calibration
     "calibrate": "recal.solve.calibrate",
     "CalibrationOptions": "recal.solve.calibrate",
     "CalibrationResult": "recal.solve.calibrate",
+    "WanderModel": "recal.solve.wander",
+    "TriadWander": "recal.solve.wander",
+    # checking a calibration
     "diagnose": "recal.diagnose.effects",
     "drift_inputs": "recal.diagnose.drift",
     "drift_test": "recal.diagnose.drift",
     "DriftConfig": "recal.diagnose.drift",
     "information_gain": "recal.diagnose.information",
+    # simulators
     "simulate_positions": "recal.sim.simulate",
+    "design_orientations": "recal.sim.simulate",
+    "NoiseSpec": "recal.sim.simulate",
+    "TemperatureSpec": "recal.sim.simulate",
     "simulate_session": "recal.sim.session",
+    "simulate_handheld": "recal.sim.session",
+    "HandheldSpec": "recal.sim.session",
+    "simulate_vessel": "recal.sim.vessel",
+    "VesselSpec": "recal.sim.vessel",
+    "SeaState": "recal.sim.vessel",
+    "Segment": "recal.sim.vessel",
 }
 
 __all__ = ["__version__", *_API]
@@ -59,3 +101,21 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted(__all__)
+
+
+class _Recal(types.ModuleType):
+    """The package's module type: a public name is never replaced by a module of the same
+    spelling. Importing a submodule binds it on its parent, so without this ``recal.diagnose``
+    (the function) became the subpackage ``recal.diagnose`` after any ``import
+    recal.diagnose.drift``, and ``recal.calibrate`` the old module ``recal.calibrate`` after a
+    script imported that deprecated path: ``from recal import diagnose`` depended on what was
+    imported before. Submodules stay importable by their full name (``sys.modules``)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _API and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Recal
+_moved.install()

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from recal.model.terms import Term
+from recal import Term
 
 #: Earth field at a mid-latitude northern site, gauss (north, east, up): 0.20 G horizontal,
 #: 0.45 G pointing down.

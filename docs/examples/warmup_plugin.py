@@ -7,7 +7,7 @@ residual falling with time (r = -0.66) and asks for a plugin; this is it. Its ty
 MEMS accelerometer's during the first minutes after power-on (tens of mg per hour).
 """
 
-from recal.model.terms import ColumnBiasTerm
+from recal import ColumnBiasTerm
 
 TERMS = [
     ColumnBiasTerm(

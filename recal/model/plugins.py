@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import sys
 import types
+import warnings
 from collections import ChainMap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -80,9 +81,12 @@ def load_plugin_source(source: str, path: str) -> list[Term]:
         raise RecalInputError(f"plugin {path} is not Python source (it has NUL bytes)") from None
     module = types.ModuleType(name)
     module.__file__ = path
+    # what it warned about is remembered per file: `recal calibrate` loads a plugin twice
+    module.__dict__["__warningregistry__"] = _WARNED.setdefault(path, {})
     # registered so dataclasses, pickling and the coefficients file can find the term's file
     sys.modules[name] = module
     try:
+        _show_plugin_deprecations()
         exec(code, module.__dict__)  # noqa: S102 - running the user's plugin is the point
     except (Exception, SystemExit) as exc:  # noqa: BLE001 - user code: report, don't crash
         sys.modules.pop(name, None)
@@ -94,6 +98,29 @@ def load_plugin_source(source: str, path: str) -> list[Term]:
         sys.modules.pop(name, None)
         raise RecalInputError(f"plugin {path} must define TERMS = [recal.model.terms.Term, ...]")
     return validate_terms(terms, path)
+
+
+#: The warnings registry of each plugin file (see load_plugin_source).
+_WARNED: dict[str, dict] = {}
+#: Module names the loader gives plugins (``recal_plugin_<stem>``), as a warnings filter pattern.
+_PLUGIN_MODULES = r"recal_plugin_"
+
+
+def _show_plugin_deprecations() -> None:
+    """Show the DeprecationWarnings a plugin's own lines cause (an old import path such as
+    ``recal.terms``), once per line of the file. A plugin file is the user's code, like a script's
+    ``__main__``, for which Python shows them; but it runs as module ``recal_plugin_<stem>``,
+    for which Python's default filters hide them, and its author would learn of the old path
+    only when it is gone. The filter is added only when missing (adding one resets what the
+    warnings registries remember) and never against ``-W`` options (``sys.warnoptions``),
+    which decide alone."""
+    if sys.warnoptions:
+        return
+    for action, _, category, module, _ in warnings.filters:
+        pattern = getattr(module, "pattern", module)  # Python's own filters hold plain strings
+        if (action, category, pattern) == ("default", DeprecationWarning, _PLUGIN_MODULES):
+            return
+    warnings.filterwarnings("default", category=DeprecationWarning, module=_PLUGIN_MODULES)
 
 
 def validate_terms(terms: Sequence[Any], path: str) -> list[Term]:
