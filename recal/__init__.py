@@ -95,6 +95,9 @@ def __getattr__(name: str) -> Any:
     if module is None:
         raise AttributeError(f"module 'recal' has no attribute {name!r}")
     value = getattr(importlib.import_module(module), name)
+    bound = globals().get(name)  # importing the module may have bound the function-and-package
+    if isinstance(bound, _FunctionAndPackage) and bound.__wrapped__ is value:
+        return bound
     globals()[name] = value
     return value
 
@@ -103,16 +106,46 @@ def __dir__() -> list[str]:
     return sorted(__all__)
 
 
+class _FunctionAndPackage:
+    """A public function whose name is also a subpackage's (``recal.diagnose``): calling it
+    calls the function, its attributes are the package's (its submodules), and ``inspect``
+    sees the function's signature and docstring. So both ``from recal import diagnose`` and
+    ``import recal.diagnose.drift as m`` (which looks ``drift`` up on what ``recal.diagnose``
+    is) work whatever was imported first."""
+
+    def __init__(self, function: Any, package: types.ModuleType) -> None:
+        object.__setattr__(self, "__wrapped__", function)
+        object.__setattr__(self, "_package", package)
+        for attr in ("__doc__", "__name__", "__qualname__", "__module__"):
+            object.__setattr__(self, attr, getattr(function, attr))
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.__wrapped__(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._package, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._package, name, value)  # a submodule imported later binds on the package
+
+    def __repr__(self) -> str:
+        return f"<function and package recal.{self.__name__}>"
+
+
 class _Recal(types.ModuleType):
     """The package's module type: a public name is never replaced by a module of the same
     spelling. Importing a submodule binds it on its parent, so without this ``recal.diagnose``
     (the function) became the subpackage ``recal.diagnose`` after any ``import
     recal.diagnose.drift``, and ``recal.calibrate`` the old module ``recal.calibrate`` after a
     script imported that deprecated path: ``from recal import diagnose`` depended on what was
-    imported before. Submodules stay importable by their full name (``sys.modules``)."""
+    imported before. A subpackage of a public function's name is reached through the function
+    (:class:`_FunctionAndPackage`); a deprecated module of that name by its full name only."""
 
     def __setattr__(self, name: str, value: Any) -> None:
         if name in _API and isinstance(value, types.ModuleType):
+            if value.__name__ == f"{__name__}.{name}" and hasattr(value, "__path__"):
+                function = getattr(importlib.import_module(_API[name]), name)
+                super().__setattr__(name, _FunctionAndPackage(function, value))
             return
         super().__setattr__(name, value)
 
