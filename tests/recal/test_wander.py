@@ -194,22 +194,34 @@ def test_two_triads_each_short_of_the_threshold_are_kept_together() -> None:
 
 
 def test_the_drift_test_allows_for_the_wander_no_test_kept() -> None:
-    """possible_wander: the kept model plus each triad tested but not kept, at its bound."""
+    """possible_wander: every triad tested, kept or not, at the upper bound of its sigma."""
     from recal.solve.wander import possible_wander
 
     assert possible_wander(None) is None
     assert possible_wander({"wander": None, "wander_test": "not estimated: ..."}) is None
     kept = {"kind": "gauss-markov", "gyro": {"sigma": [1.0] * 3, "tau_s": [3600.0] * 3}}
     tests = [
-        {"sensor": "gyro", "significant": True, "sigma": 1.0, "tau_s": 3600.0},
-        {"sensor": "accel", "significant": False, "sigma": 2e-6, "tau_s": 7200.0},
-    ]
+        {"sensor": "gyro", "significant": True, "sigma": 1.0, "sigma_upper": 1.4, "tau_s": 3600.0},
+        {"sensor": "accel", "significant": False, "sigma": 2e-6, "sigma_upper": 3e-6,
+         "tau_s": 7200.0},
+    ]  # fmt: skip
     model = possible_wander({"wander": kept, "wander_test": tests})
     assert set(model.triads) == {"gyro", "accel"}
-    np.testing.assert_array_equal(model.triads["accel"].sigma, [2e-6] * 3)
+    np.testing.assert_array_equal(model.triads["gyro"].sigma, [1.4] * 3)
+    np.testing.assert_array_equal(model.triads["accel"].sigma, [3e-6] * 3)
     np.testing.assert_array_equal(model.triads["accel"].tau_s, [7200.0] * 3)
-    tests[1]["sigma"] = 0.0  # nothing to allow for
+    tests[1]["sigma"] = tests[1]["sigma_upper"] = 0.0  # nothing to allow for
     assert set(possible_wander({"wander": kept, "wander_test": tests}).triads) == {"gyro"}
+    given = possible_wander({"wander": kept})  # a given model (no test): as given
+    np.testing.assert_array_equal(given.triads["gyro"].sigma, [1.0] * 3)
+
+
+def test_the_upper_bound_of_sigma_lies_above_the_estimate() -> None:
+    pos = _session(202)
+    res = calibrate(pos, CalibrationOptions(latitude_deg=45.0, method="lm", wander="auto"))
+    for t in res.noise_model["wander_test"]:
+        if t["sigma"] > 0:
+            assert t["sigma"] < t["sigma_upper"] < 3 * t["sigma"]
 
 
 def test_recal_drift_reads_the_wander_of_a_calibrate_document(tmp_path, capsys) -> None:
