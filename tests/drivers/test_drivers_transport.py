@@ -292,3 +292,35 @@ def test_read_chunk_waits_for_a_useful_size() -> None:
     port.waiting = 0  # without a byte rate: one blocking read of the minimum size
     read_chunk(port, 1800, 4096)
     assert port.sizes[-1] == 1800
+
+
+def test_socket_ports_are_read_in_chunks_not_bytes() -> None:
+    """pyserial's socket:// says 1 in in_waiting however much has come: read_chunk used to
+    take one byte per pause (8 kB/s for a CSV stream); it now takes what has come."""
+    import socket
+    import threading
+
+    from drivers.transport import read_chunk
+
+    data = bytes(range(256)) * 200  # 51 kB
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def send() -> None:
+        conn, _ = server.accept()
+        with conn:
+            time.sleep(0.3)  # after pyserial's open() has flushed its input
+            conn.sendall(data)
+            time.sleep(1.0)
+
+    thread = threading.Thread(target=send, daemon=True)
+    thread.start()
+    port = open_port(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.05)
+    got, reads = b"", 0
+    deadline = time.monotonic() + 5
+    while len(got) < len(data) and time.monotonic() < deadline:
+        got += read_chunk(port, 409, 4096, 8192.0)
+        reads += 1
+    port.close()
+    thread.join(5)
+    server.close()
+    assert got == data and reads < 40, reads
