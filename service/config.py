@@ -188,6 +188,12 @@ class DetectorSettings(Section):
         gt=0,
         description="else learn it from the quietest stretches of the first learn_s (s)",
     )
+    learn_quiet_s: float = Field(
+        10.0,
+        gt=0,
+        description="learning ends sooner, from the frames held, when the stream sends nothing "
+        "for this long (s of wall time), after learn_s of wall time, or when the input ends",
+    )
     threshold_k: float = Field(5.0, gt=0, description="threshold = threshold_k x noise floor")
     accel_threshold: float | None = Field(
         None, ge=0, description="explicit accel threshold on the moving variance ((m/s^2)^2)"
