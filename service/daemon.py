@@ -293,10 +293,12 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
     """Open the store, the publisher, the pipeline and (optionally) the serial reader."""
     from service.db import Store
     from service.publish import Publisher
-    from service.spool import Spool, default_spool_dir
+    from service.spool import Spool
+    from service.startup import prepare_state_dir, spool_folder
 
+    prepare_state_dir(settings)  # the defaults' folder: never the working folder
     publisher = Publisher(settings.publish_path)  # checks the path first: nothing opened yet
-    folder = settings.spool_dir or default_spool_dir(settings.database_url)
+    folder = spool_folder(settings)
     spool = None if folder is None else Spool(folder)
     store = Store(settings.database_url)
     try:
