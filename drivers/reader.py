@@ -41,9 +41,11 @@ class ReaderHealth:
     connected. reconnect_count: successful re-opens after the first open. last_error: the last
     port or delivery error as text (kept after a reconnect; last_error_time says when).
     diagnosis: a plain-words warning when the stream looks like another format
-    (drivers.diagnose), else None. state: "stopped", "disconnected", "silent" (open, but no
-    byte for silence_s) or "ok"; problem: one plain-words sentence for any state but "ok"
-    (what a service's /health shows when it reports itself degraded), else None.
+    (drivers.diagnose), else None. state: "stopped", "disconnected", "ended" (a replayed
+    capture read to its end: nothing more will come), "silent" (open, but no byte for
+    silence_s) or "ok"; problem: one plain-words sentence for any state but "ok" (what a
+    service's /health shows when it reports itself degraded), else None. ended_s: how long
+    ago the input ended, None before.
     """
 
     running: bool
@@ -61,6 +63,7 @@ class ReaderHealth:
     last_error_time: float | None = None
     state: str = "ok"
     problem: str | None = None
+    ended_s: float | None = None
 
 
 class FrameReader:
@@ -75,6 +78,12 @@ class FrameReader:
     continuity kept, so lost frames show as a sequence gap), and the port re-opened after a
     bounded exponential back-off (backoff_initial doubling up to backoff_max). A URL whose
     scheme is unknown fails at construction (DriverInputError); a missing device is retried.
+
+    A port that knows its input has ended (a ``replay://`` capture read to its end with
+    ``eof=idle``: ``port.at_eof`` and nothing waiting) ends the stream: what the parser still
+    holds (a last line without a newline, frames kept back) is delivered, then ``on_end`` is
+    called once (in the reader thread) and the state is "ended". The thread keeps running (an ended replay is not a
+    fault a restart would mend).
     """
 
     def __init__(
@@ -95,6 +104,7 @@ class FrameReader:
         silence_s: float = 1.0,
         options: dict | None = None,
         parser: object | None = None,
+        on_end: Callable[[], None] | None = None,
     ) -> None:
         check_url(url, must_exist=False)
         if parser is None:
@@ -124,6 +134,8 @@ class FrameReader:
         self.backoff_initial = backoff_initial
         self.backoff_max = backoff_max
         self._on_batch = on_batch
+        self._on_end = on_end
+        self._ended_at: float | None = None  # host time the input ended (replay at its end)
         self._queue = queue
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -189,6 +201,12 @@ class FrameReader:
                 problem = f"{self.url} is disconnected ({away:.1f} s)" + (
                     f": {self._last_error}" if self._last_error else ""
                 )
+            elif self._ended_at is not None:
+                state = "ended"
+                problem = (
+                    f"the capture has been replayed to its end ({now - self._ended_at:.1f} s "
+                    "ago): no more frames will come"
+                )
             elif quiet_since is not None and now - quiet_since > self.silence_s:
                 state = "silent"
                 problem = f"{self.url} is open but has sent nothing for {now - quiet_since:.1f} s"
@@ -212,6 +230,7 @@ class FrameReader:
                 last_error_time=self._last_error_time,
                 state=state,
                 problem=problem,
+                ended_s=None if self._ended_at is None else now - self._ended_at,
             )
 
     def _diagnosis(self) -> str | None:
@@ -245,6 +264,7 @@ class FrameReader:
             self._connected = True
             self._connected_at = time.monotonic()
             self._away_since = None
+            self._ended_at = None  # re-opened: the input starts again
             if self._ever_connected:
                 self._reconnects += 1
                 log.info("%s: re-opened (reconnect %d)", self.url, self._reconnects)
@@ -329,6 +349,33 @@ class FrameReader:
         self._last_stamp = stamp
         return stamp
 
+    def _end_of_input(self) -> None:
+        """The port's input has ended: deliver what the parser still holds (a last line
+        without a newline, frames kept back to judge the bytes or the time steps after them),
+        mark the state "ended" and call ``on_end``."""
+        now = time.monotonic()
+        with self._lock:
+            self._ended_at = now
+            tail = self._lines.flush() if self._lines is not None else b""
+            # the last line's bytes came with the last read: its arrival time
+            came = self._last_stamp if math.isfinite(self._last_stamp) else now
+            parts = [self._parse(tail + b"\n", came)] if tail.strip() else []
+            parts.append(self._parser.flush())
+            parts = [p for p in parts if p is not None and len(p)]
+            batch = FrameBatch.concat(parts) if parts else None
+            if batch is not None:
+                self._last_frame_time = now
+        if batch is not None:
+            self._deliver(batch)
+        log.info("%s: end of input", self.url)
+        if self._on_end is not None:
+            try:
+                self._on_end()
+            except Exception as exc:  # noqa: BLE001 - a consumer bug must not kill the reader
+                log.exception("end-of-input callback failed")
+                with self._lock:
+                    self._set_error(f"end callback: {type(exc).__name__}: {exc}")
+
     def _run(self) -> None:
         delay = self.backoff_initial
         try:
@@ -353,6 +400,8 @@ class FrameReader:
                     delay = min(delay * 2, self.backoff_max)
                     continue
                 if not data:
+                    if self._ended_at is None and _input_ended(port):
+                        self._end_of_input()
                     continue
                 delay = self.backoff_initial
                 now = time.monotonic()
@@ -366,6 +415,15 @@ class FrameReader:
                     self._deliver(batch)
         finally:
             self._drop_port(None)
+
+
+def _input_ended(port: object) -> bool:
+    """The port says its input has ended (``at_eof``, as a replay:// port at the end of its
+    capture with ``eof=idle``) and nothing is left to read. A serial port never does."""
+    try:
+        return getattr(port, "at_eof", False) is True and not port.in_waiting
+    except Exception:  # noqa: BLE001 - a port failing here fails the next read too
+        return False
 
 
 def _make_parser(fmt: str | FrameFormat, config: DecoderConfig, options: dict, url: str):

@@ -22,6 +22,7 @@ from urllib.parse import quote, unquote, urlencode, urlsplit
 
 import serial
 import serial.urlhandler
+from serial.urlhandler.protocol_socket import Serial as _SocketPort
 
 from .errors import DriverInputError
 
@@ -132,7 +133,13 @@ def read_chunk(
     is waiting block until ``min_bytes`` have come or the port's timeout expires. pyserial's
     posix ``read(n)`` wakes at every arrival from the kernel (each USB packet, each write to a
     pty); the pause makes that about 1/latency wake-ups a second. Raises what the port raises.
+
+    pyserial's ``socket://`` port says 1 in ``in_waiting`` however much has come: it would be
+    read a byte per pause. It is read up to ``max_bytes`` at once, blocking until they have come
+    or the timeout expires (it wakes per TCP segment, not per byte).
     """
+    if isinstance(port, _SocketPort):
+        return port.read(max_bytes)
     waiting = port.in_waiting
     if byte_rate and waiting < min_bytes:
         timeout = getattr(port, "timeout", None)

@@ -1,7 +1,9 @@
 """Service settings: a TOML file plus ``RECAL_*`` environment variables (pydantic-settings).
 
 Precedence, highest first: keyword arguments, environment (``RECAL_SITE__LATITUDE_DEG=57.7``,
-nested with ``__``), the TOML file, the defaults below. Example file::
+nested with ``__``), the TOML file, the defaults below. A file the daemon writes whose setting is
+unset goes under ``state_dir`` (:func:`default_state_dir`), never into the working folder.
+Example file::
 
     database_url = "sqlite:///var/lib/recal/recal.db"
     publish_path = "/run/recal/coefficients.json"
@@ -187,6 +189,12 @@ class DetectorSettings(Section):
         120.0,
         gt=0,
         description="else learn it from the quietest stretches of the first learn_s (s)",
+    )
+    learn_quiet_s: float = Field(
+        10.0,
+        gt=0,
+        description="learning ends sooner, from the frames held, when the stream sends nothing "
+        "for this long (s of wall time), after learn_s of wall time, or when the input ends",
     )
     threshold_k: float = Field(5.0, gt=0, description="threshold = threshold_k x noise floor")
     accel_threshold: float | None = Field(
@@ -441,13 +449,17 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="RECAL_", env_nested_delimiter="__")
 
-    database_url: str = Field(
-        "sqlite:///recal.db",
+    # str once loaded: unset, they are filled in under state_dir (see _state_paths)
+    database_url: str | None = Field(
+        None,
         description="where windows, calibrations and events are kept: sqlite:///FILE or "
-        "postgresql+psycopg://user@host/db (its schema is upgraded at start)",
+        "postgresql+psycopg://user@host/db (its schema is upgraded at start; unset: "
+        "sqlite:///STATE_DIR/recal.db)",
     )
-    publish_path: str = Field(
-        "coefficients.json", description="JSON file the accepted coefficients are published to"
+    publish_path: str | None = Field(
+        None,
+        description="JSON file the accepted coefficients are published to (unset: "
+        "STATE_DIR/coefficients.json)",
     )
     prior_path: str | None = Field(
         None, description="coefficients JSON the first calibration starts from (unset: none)"
@@ -455,8 +467,14 @@ class Settings(BaseSettings):
     spool_dir: str | None = Field(
         None,
         description="folder where each detected window is made durable until the database has "
-        "it (unset: FILE.spool beside a SQLite FILE; else recal-spool/HOST_PORT_DB in the "
-        "working folder, /var/lib/recal under deploy/recal.service)",
+        "it (unset: FILE.spool beside a SQLite FILE; else STATE_DIR/spool/HOST_PORT_DB)",
+    )
+    state_dir: str | None = Field(
+        None,
+        description="folder for every file the daemon writes whose own setting is unset (the "
+        "SQLite database, the published file, the spool); never the working folder (unset: "
+        "$STATE_DIRECTORY, which systemd sets from StateDirectory=, else "
+        "$XDG_STATE_HOME/recal or ~/.local/state/recal)",
     )
     device: DeviceSettings = Field(DeviceSettings(), description="the IMU and its link")
     site: SiteSettings = Field(SiteSettings(), description="where the unit is")
@@ -478,6 +496,20 @@ class Settings(BaseSettings):
             _check_keys(cls, data, section=None)
         return data
 
+    @model_validator(mode="after")
+    def _state_paths(self) -> Settings:
+        """Resolve ``state_dir`` (absolute) and put the unset database and published file in
+        it: a daemon started from any folder writes to the same place, never to that folder.
+        Paths given explicitly are kept as they are."""
+        state = Path(self.state_dir).expanduser() if self.state_dir else default_state_dir()
+        state = state.absolute()
+        self.state_dir = str(state)
+        if self.database_url is None:
+            self.database_url = f"sqlite:///{state / 'recal.db'}"
+        if self.publish_path is None:
+            self.publish_path = str(state / "coefficients.json")
+        return self
+
     @classmethod
     def settings_customise_sources(
         cls,
@@ -489,6 +521,23 @@ class Settings(BaseSettings):
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         # keyword arguments > environment > TOML file (``toml_file`` of the model config)
         return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
+
+
+def default_state_dir(environ: Mapping[str, str] | None = None) -> Path:
+    """Where the daemon keeps its files when ``state_dir`` is unset: ``$STATE_DIRECTORY`` (the
+    first, if several: systemd sets it from the unit's ``StateDirectory=``), else the user's
+    state folder, ``$XDG_STATE_HOME/recal`` (an absolute ``XDG_STATE_HOME`` only, as the XDG
+    base directory specification says) or ``~/.local/state/recal``. A user-level default keeps
+    a hand-started daemon's database and spool in one known place, whatever folder it was
+    started from."""
+    env = os.environ if environ is None else environ
+    systemd = env.get("STATE_DIRECTORY", "").split(":")[0]
+    if systemd:
+        return Path(systemd)
+    xdg = env.get("XDG_STATE_HOME", "")
+    if xdg and os.path.isabs(xdg):
+        return Path(xdg) / "recal"
+    return Path.home() / ".local" / "state" / "recal"
 
 
 def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:

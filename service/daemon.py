@@ -202,6 +202,7 @@ class Service:
                 if h.last_frame_time is None
                 else time.monotonic() - h.last_frame_time,
                 "last_error": h.last_error,
+                "state": h.state,  # ok, silent, disconnected, ended (a replay), stopped
                 "diagnosis": h.diagnosis,
                 "counters": asdict(h.counters),
             }
@@ -237,10 +238,11 @@ class Service:
 
     def end_of_input(self, timeout_s: float = 60.0) -> None:
         """The stream has ended (a replayed capture read to its end): feed what the reader
-        queued, then close the open window."""
+        queued, then learn from the frames held, if any, and close the open window. The reader
+        says so itself at the end of a ``replay://`` capture; a second call changes nothing."""
         if self.feeder is not None and not self.feeder.wait_idle(timeout_s):
             raise TimeoutError(f"the ingest thread did not catch up within {timeout_s:g} s")
-        self.ingest.flush()
+        self.ingest.end_of_input()
 
     def close(self, wait_s: float | None = None) -> None:
         """Stop reading, store the open window, let a running job finish (up to
@@ -252,7 +254,7 @@ class Service:
         if self.feeder is not None:
             self.feeder.stop()  # what the reader queued goes in before the open window closes
         try:
-            self.ingest.flush()
+            self.ingest.flush(why="stopping")
         except Exception:  # noqa: BLE001 - shutting down: keep going, the log has it
             log.exception("flushing the detector at shutdown failed")
         wait = self.settings.scheduler.stop_wait_s if wait_s is None else wait_s
@@ -291,10 +293,12 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
     """Open the store, the publisher, the pipeline and (optionally) the serial reader."""
     from service.db import Store
     from service.publish import Publisher
-    from service.spool import Spool, default_spool_dir
+    from service.spool import Spool
+    from service.startup import prepare_state_dir, spool_folder
 
+    prepare_state_dir(settings)  # the defaults' folder: never the working folder
     publisher = Publisher(settings.publish_path)  # checks the path first: nothing opened yet
-    folder = settings.spool_dir or default_spool_dir(settings.database_url)
+    folder = spool_folder(settings)
     spool = None if folder is None else Spool(folder)
     store = Store(settings.database_url)
     try:
@@ -309,7 +313,8 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
         rest = rest_reference(settings, _starting_prior(store, settings))
         hull = settings.detector.hull_config() if settings.detector.motion == "hull" else None
         ingest = Ingest(store, session_id, config, scheduler.notify, events, keeper,
-                        settings.detector.learn_s, spool, rest=rest, hull=hull)  # fmt: skip
+                        settings.detector.learn_s, spool, rest=rest, hull=hull,
+                        learn_quiet_s=settings.detector.learn_quiet_s)  # fmt: skip
     except BaseException:
         store.close()
         raise
@@ -321,8 +326,11 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
         # any registered format, with the [device] settings it takes (drivers.registry)
         # the reader only queues: the ingest thread runs the detector, spool and database
         service.feeder = IngestThread(ingest)
+        # a replayed capture read to its end is the end of input: the frames held to learn
+        # the noise floor and the open window are processed after the last frame
         service.reader = FrameReader(d.url, d.format, options=d.format_options(),
-                                     on_batch=service.feeder.put, baudrate=d.baudrate)  # fmt: skip
+                                     on_batch=service.feeder.put, baudrate=d.baudrate,
+                                     on_end=service.feeder.end)  # fmt: skip
     events.emit("start", f"service started, reading {settings.device.url}",
                 {"session": session_id})  # fmt: skip
     service.sync_published()  # the file follows the database from the first second

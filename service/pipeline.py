@@ -50,6 +50,11 @@ SPOOL_RETRY_MIN_S, SPOOL_RETRY_MAX_S = 0.5, 30.0
 REFINE_EVERY, REFINE_OVER = 10, 50
 #: One refinement moves the floor by at most this factor (a few odd windows cannot run away).
 REFINE_MAX_STEP = 2.0
+#: While the first noise floor is learned, a step in device time between two frames longer than
+#: this (s) is a gap or a clock reset: it is not counted as time learned.
+LEARN_MAX_STEP_S = 1.0
+#: Why learning the first noise floor ended, by code (``/health`` detector.learning.ended_by).
+LEARN_ENDS = ("device_time", "quiet", "wall_time", "end_of_input", "stopping")
 
 
 def detector_config(settings: Settings) -> DetectorConfig:
@@ -192,6 +197,12 @@ class Ingest:
     instead: no noise floor is learned and no slews are kept (a rocking hull's window ends are
     off its mean attitude by the wave's angle).
 
+    Without thresholds or a stored floor, frames are held while the first noise floor is
+    learned from the first ``learn_s`` of device time; learning ends sooner, from what is held,
+    when the stream sends nothing for ``learn_quiet_s``, after ``learn_s`` of host time (a slow
+    or short stream) or at the end of input (:meth:`end_of_input`, :meth:`flush`), so held
+    frames always become windows. ``/health`` shows it (:meth:`learning_health`).
+
     The motion between consecutive windows is kept too (:class:`recal.detect.slews.SlewTracker`,
     bounded memory) and stored with them, so the gyro can be calibrated from the slews.
 
@@ -217,7 +228,10 @@ class Ingest:
         spool: Spool | None = None,
         rest: RestReference | None = None,
         hull: Any = None,
+        learn_quiet_s: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        self._clock = clock  # host time, s (a test's own clock drives the wall-time rules)
         self._store = store
         self._session = session_id
         self._on_positions = on_positions
@@ -227,7 +241,16 @@ class Ingest:
         self._learn_s = learn_s
         self._estimator: NoiseFloorEstimator | None = None
         self._learning: list[Any] = []  # frames held while the first noise floor is learned
-        self._learned_s = 0.0
+        self._learned_s = 0.0  # device time of the frames held (steps beyond a gap not counted)
+        self._learn_quiet_s = learn_quiet_s
+        self._learn_last_t: float | None = None  # device time of the last frame held
+        self._learn_started: float | None = None  # host time the first frame was held
+        self._learn_took_s: float | None = None  # host time learning took, once it has ended
+        self._learn_tried_s = -1.0  # learned_s at the last early attempt that failed
+        self.learn_ended_by: str | None = None  # a LEARN_ENDS code once learned from frames
+        self.learn_message: str | None = None  # why it ended (or failed), in plain words
+        self._last_frame_at: float | None = None  # host time of the last frame fed
+        self.input_ended = False  # end_of_input() was called: no frame will come
         self._detector: StaticDetector | None = None
         self._rest = rest
         self._rest_seen = self._rest_refused = 0  # static windows judged / refused by it
@@ -276,15 +299,19 @@ class Ingest:
         self.frames = 0
         self.windows = 0
         self.windows_dropped = 0
-        self.last_detector_run = time.monotonic()
+        self.last_detector_run = self._clock()
 
     def feed(self, batch: Any) -> list[int]:
         """Take a drivers.FrameBatch; returns the ids of positions stored by this call."""
         with self._lock:
             if len(batch) == 0:
                 return []
+            now = self._clock()
+            self._last_frame_at = now
+            if self._learn_started is None and self.learning:
+                self._learn_started = now
             if not self._pending:
-                self._first_pending = time.monotonic()
+                self._first_pending = now
             self._pending.append(batch)
             self._count += len(batch)
             self.frames += len(batch)
@@ -298,17 +325,34 @@ class Ingest:
         with self._lock:
             if self._pending and self._stale():
                 return self._run(flush=False)
-            if self._spool and time.monotonic() >= self._retry_at:
+            if self._learn_cut() is not None:  # the stream went quiet, or is too slow
+                return self._run(flush=False)
+            if self._spool and self._clock() >= self._retry_at:
                 return self._drain()
             return []
 
     def _stale(self) -> bool:
-        return time.monotonic() - self._first_pending >= DETECTOR_MAX_WAIT_S
+        return self._clock() - self._first_pending >= DETECTOR_MAX_WAIT_S
 
-    def flush(self) -> list[int]:
-        """End of stream: close the open window, if any."""
+    def flush(self, why: str = "end_of_input") -> list[int]:
+        """End of stream: learn the noise floor from the frames held, if it is still being
+        learned, then close the open window, if any. ``why`` (a :data:`LEARN_ENDS` code) is
+        what ``/health`` and the events give as the end of learning."""
         with self._lock:
-            return self._run(flush=True)
+            return self._run(flush=True, why=why)
+
+    def end_of_input(self) -> list[int]:
+        """No frame will come (a replayed capture read to its end): say so in an ``input``
+        event, then :meth:`flush`. Called once per stream; later calls do nothing, so the
+        reader's signal and a caller that also knows the stream has ended cannot double it."""
+        with self._lock:
+            if self.input_ended:
+                return []
+            self.input_ended = True
+            self._events.emit("input", "end of input: the stream has ended; the frames held are "
+                              "processed and the open window is closed",
+                              {"frames": self.frames})  # fmt: skip
+            return self._run(flush=True, why="end_of_input")
 
     @property
     def report(self) -> Any:
@@ -328,36 +372,118 @@ class Ingest:
             self._keeper is not None and cfg.init_still_s is not None and cfg.noise_floor is None
         )
 
-    def _learn(self, batch: Any, final: bool) -> list[Any]:
-        """Hold frames and feed the estimator until ``learn_s`` of device time (or the end of
-        the stream); then start the detector with the floor and give it the held frames."""
+    def _learn(self, batch: Any, final: bool, why: str | None = None) -> list[Any]:
+        """Hold frames and feed the estimator until ``learn_s`` of device time; then start the
+        detector with the floor and give it the held frames.
+
+        Learning also ends, from what is held, when no more frames will come or may come soon:
+        the stream has ended (``final``, ``why`` naming the cause), has sent nothing for
+        ``learn_quiet_s`` (a stream left open and quiet) or has taken ``learn_s`` of wall time
+        without ``learn_s`` of device time (a slow or short stream): held forever, those frames
+        would never become windows. Such an early end is said in a ``noise_floor`` event."""
         if batch is not None and len(batch):
             self._learning.append(batch)
             self._estimator.feed(batch.time_s, batch.gyro_dph, batch.accel_g, batch.valid)
-            t = batch.time_s
-            self._learned_s += float(t[-1] - t[0]) if len(t) > 1 else 0.0
-        if self._learned_s < self._learn_s and not final:
-            return []
+            self._learned_s += self._device_span(batch.time_s)
+        if self._learned_s >= self._learn_s:
+            why = "device_time"
+        elif not final:
+            why = self._learn_cut()
+            if why is None:
+                return []
         try:
             floor = self._estimator.result()
         except RecalInputError as exc:
-            if not final:
-                return []  # not enough yet (e.g. all frames invalid so far): keep learning
+            if not final:  # not enough yet (e.g. all frames invalid so far): keep learning
+                if why != "device_time" and self._learn_tried_s < 0:
+                    self._events.emit("noise_floor", f"cannot learn the noise floor yet "
+                                      f"({self._learn_why(why)}): {exc}; frames stay held",
+                                      {"reason": why}, level=logging.WARNING)  # fmt: skip
+                self._learn_tried_s = self._learned_s
+                return []
             self._events.emit("noise_floor", f"cannot learn the noise floor: {exc}",
                               level=logging.WARNING)  # fmt: skip
+            self.learn_ended_by, self.learn_message = why, f"cannot learn it: {exc}"
+            self._learn_took_s = self._learning_wall_s()
             self._learning = []
             return []
+        self._learn_took_s = self._learning_wall_s()
+        self.learn_ended_by = why
+        held = sum(len(b) for b in self._learning)
+        if why == "device_time":
+            self.learn_message = f"learned from the first {self._learned_s:.1f} s of device time"
+        else:
+            self.learn_message = (
+                f"learned from the {self._learned_s:.1f} s of device time held "
+                f"(learn_s {self._learn_s:g}): {self._learn_why(why)}"
+            )
+            floor = replace(floor, source=f"{floor.source}; {self.learn_message}")
+            self._events.emit("noise_floor", f"learning ended early: {self._learn_why(why)}; "
+                              f"the noise floor is learned from the {self._learned_s:.1f} s of "
+                              f"device time held (learn_s {self._learn_s:g}) and its {held} "
+                              "frames go to the detector",
+                              {"reason": why, "learned_s": round(self._learned_s, 1),
+                               "frames": held})  # fmt: skip
         self._config = replace(self._config, noise_floor=floor)
         self._start_detector()
         if self._keeper is not None:
             self._keeper.save(floor, floor.source)
-        held, self._learning = self._learning, []
-        return held
+        held_batches, self._learning = self._learning, []
+        return held_batches
+
+    def _learn_cut(self) -> str | None:
+        """Why learning should end now from the frames held though ``learn_s`` of device time
+        has not been reached: ``quiet`` (no frame for ``learn_quiet_s``) or ``wall_time``
+        (``learn_s`` of host time since the first frame held); None: keep learning. An attempt
+        that failed (too few frames) is not repeated before more frames are held."""
+        if not self.learning or self.learn_ended_by is not None or self._learn_started is None:
+            return None  # not learning, or it failed for good (the input ended)
+        if not (self._learning or self._pending):
+            return None
+        if self._learn_tried_s >= 0 and self._learned_s <= self._learn_tried_s:
+            return None  # tried with these frames already: wait for more
+        now = self._clock()
+        if self._last_frame_at is not None and now - self._last_frame_at >= self._learn_quiet_s:
+            return "quiet"
+        if now - self._learn_started >= self._learn_s:
+            return "wall_time"
+        return None
+
+    def _learn_why(self, why: str | None) -> str:
+        """A :data:`LEARN_ENDS` code in plain words."""
+        quiet = (
+            "" if self._last_frame_at is None else f"{self._clock() - self._last_frame_at:.0f} s"
+        )
+        return {
+            "device_time": f"{self._learn_s:g} s of device time learned",
+            "quiet": f"the stream has sent no frame for {quiet} (learn_quiet_s "
+            f"{self._learn_quiet_s:g})",
+            "wall_time": f"{self._learn_s:g} s of wall time have passed with only "
+            f"{self._learned_s:.1f} s of device time",
+            "end_of_input": "the input has ended",
+            "stopping": "the service is stopping",
+        }.get(why or "", why or "")
+
+    def _learning_wall_s(self) -> float | None:
+        """Host time since the first frame was held (None before it)."""
+        return None if self._learn_started is None else self._clock() - self._learn_started
+
+    def _device_span(self, t: Any) -> float:
+        """Device time frames at times ``t`` add to what is learned: from the last frame held
+        (each batch's first step counts too), except across a step longer than
+        :data:`LEARN_MAX_STEP_S` or backwards (a gap, a reset clock)."""
+        if len(t) == 0:
+            return 0.0
+        first, last = float(t[0]), float(t[-1])
+        previous, self._learn_last_t = self._learn_last_t, last
+        if previous is not None and 0.0 <= first - previous <= LEARN_MAX_STEP_S:
+            first = previous
+        return max(0.0, last - first)
 
     def frames_waiting_s(self) -> float | None:
         """How long the oldest frame not yet given to the detector has waited (host s)."""
         with self._lock:
-            return time.monotonic() - self._first_pending if self._pending else None
+            return self._clock() - self._first_pending if self._pending else None
 
     def detector_health(self) -> dict[str, Any]:
         """The detector as ``/health`` shows it: ``motion``, the rest check's reference
@@ -382,7 +508,8 @@ class Ingest:
             }
         if self._detector is None:
             return {"motion": "still", "rest_check": rest, "learning_noise_floor": True,
-                    "learned_s": round(self._learned_s, 1), "learn_s": self._learn_s}  # fmt: skip
+                    "learned_s": round(self._learned_s, 1), "learn_s": self._learn_s,
+                    "learning": self.learning_health()}  # fmt: skip
         rep = self._detector.report
         return {
             "motion": "still",
@@ -392,6 +519,39 @@ class Ingest:
             "threshold_source": getattr(rep, "threshold_source", None),
             "windows_kept": rep.windows_kept,
             "rejected": dict(rep.rejected),  # the rest check's reasons included
+            "learning": self.learning_health(),
+        }
+
+    def learning_health(self) -> dict[str, Any]:
+        """The first noise floor's learning as ``/health`` shows it (``detector.learning``):
+        ``state`` (``learning``: frames held; ``learned``: from the frames held, ``ended_by``
+        a :data:`LEARN_ENDS` code; ``failed``: too few frames; ``not needed``: thresholds
+        given, a floor stored for the device or an initial still period), device seconds
+        ``learned_s`` of ``learn_s``, host seconds ``waited_s`` since the first frame held (or
+        that learning took), and ``message`` in plain words."""
+        if self.learn_ended_by is not None:
+            state = "failed" if self._detector is None else "learned"
+            waited, message = self._learn_took_s, self.learn_message
+        elif self.learning:
+            state = "learning"
+            waited = self._learning_wall_s()
+            message = (
+                f"holding frames to learn the noise floor: {self._learned_s:.1f} of "
+                f"{self._learn_s:g} s of device time; it ends sooner if the stream sends "
+                f"nothing for {self._learn_quiet_s:g} s, after {self._learn_s:g} s of wall "
+                "time, or when the input ends"
+            )
+        else:
+            state, waited = "not needed", None
+            message = getattr(self.report, "threshold_source", None)
+        return {
+            "state": state,
+            "ended_by": self.learn_ended_by,
+            "learned_s": round(self._learned_s, 1),
+            "learn_s": self._learn_s,
+            "learn_quiet_s": self._learn_quiet_s,
+            "waited_s": None if waited is None else round(waited, 1),
+            "message": message,
         }
 
     @property
@@ -434,16 +594,17 @@ class Ingest:
             self._retry_at = 0.0
             return self._drain() if self._spool else []
 
-    def _run(self, flush: bool) -> list[int]:
+    def _run(self, flush: bool, why: str = "end_of_input") -> list[int]:
         if self._hull is not None:
             return self._run_hull(flush)
         windows = []
-        self.last_detector_run = time.monotonic()
+        self.last_detector_run = self._clock()
         batches, self._pending, self._count = self._pending, [], 0
         if self._detector is None:
             from drivers import FrameBatch
 
-            batches = self._learn(FrameBatch.concat(batches) if batches else None, final=flush)
+            batch = FrameBatch.concat(batches) if batches else None
+            batches = self._learn(batch, final=flush, why=why)
         if batches and self._detector is not None:
             from drivers import FrameBatch
 
@@ -470,7 +631,7 @@ class Ingest:
 
     def _run_hull(self, flush: bool) -> list[int]:
         """The hull detector's turn: frames in, the windows it has decided out (no slews)."""
-        self.last_detector_run = time.monotonic()
+        self.last_detector_run = self._clock()
         batches, self._pending, self._count = self._pending, [], 0
         found = []
         if batches:
@@ -536,7 +697,7 @@ class Ingest:
             self._last_key = entry.key
             self._hold(entry)
             self._retry_at = 0.0  # new data: try the database now
-        return self._drain() if self._spool and time.monotonic() >= self._retry_at else []
+        return self._drain() if self._spool and self._clock() >= self._retry_at else []
 
     def _spool_failed(self, exc: SpoolWriteError) -> None:
         if self.spool_error != str(exc):
@@ -603,7 +764,7 @@ class Ingest:
                     self._events.emit("database", f"cannot store windows, {where}: {exc}",
                                       level=logging.WARNING)  # fmt: skip
                 self.store_error = str(exc)
-                self._retry_at = time.monotonic() + self._backoff_s
+                self._retry_at = self._clock() + self._backoff_s
                 self._backoff_s = min(2 * self._backoff_s, SPOOL_RETRY_MAX_S)
                 break
             self._spool.popleft()
@@ -671,13 +832,18 @@ class Ingest:
         return ids
 
 
+#: Queued to the ingest thread by :meth:`IngestThread.end`: the input has ended.
+_END = object()
+
+
 class IngestThread:
     """Hands the reader's batches to :class:`Ingest` in a thread of its own ("ingest").
 
     The reader thread must never wait: the detector, the spool's fsync and the database take
     milliseconds to seconds, and a reader that stalls lets the serial buffer overflow and makes
     a format without timestamps date its frames from their late arrival. :meth:`put` only
-    queues; the thread feeds Ingest in order. :meth:`stop` drains the queue first.
+    queues; the thread feeds Ingest in order. :meth:`stop` drains the queue first. :meth:`end`
+    (the reader's end of input) is queued too, so Ingest hears of it after the last frame.
     """
 
     def __init__(self, ingest: Ingest) -> None:
@@ -700,13 +866,21 @@ class IngestThread:
             self._queued += 1
         self._queue.put(batch)
 
+    def end(self) -> None:
+        """The input has ended: :meth:`Ingest.end_of_input` once every batch queued before
+        has been fed (returns at once, as :meth:`put`)."""
+        self.put(_END)
+
     def _loop(self) -> None:
         while True:
             batch = self._queue.get()
             if batch is None:
                 return
             try:
-                self._ingest.feed(batch)
+                if batch is _END:
+                    self._ingest.end_of_input()
+                else:
+                    self._ingest.feed(batch)
             except Exception:  # noqa: BLE001 - one bad batch must not end the ingest
                 log.exception("ingest: a batch failed")
             with self._lock:

@@ -212,12 +212,12 @@ def read_entry(path: Path) -> SpoolEntry:
                       header["period_s"], header["key"], path)  # fmt: skip
 
 
-def default_spool_dir(database_url: str) -> Path | None:
+def default_spool_dir(database_url: str, state_dir: str | os.PathLike[str]) -> Path | None:
     """Where the spool lives when ``spool_dir`` is unset: ``FILE.spool`` beside a SQLite
-    database ``FILE``; for a database server ``recal-spool/HOST_PORT_DB`` in the working folder
-    (``/var/lib/recal`` under deploy/recal.service), one folder per database so a spool is
-    never replayed into another; None (no spool) for an in-memory SQLite database, which a
-    restart loses anyway."""
+    database ``FILE``; for a database server ``STATE_DIR/spool/HOST_PORT_DB`` (the daemon's
+    state folder, never the working folder), one folder per database so a spool is never
+    replayed into another; None (no spool) for an in-memory SQLite database, which a restart
+    loses anyway."""
     import re
 
     from sqlalchemy.engine import make_url
@@ -230,4 +230,4 @@ def default_spool_dir(database_url: str) -> Path | None:
         db = url.database
         return None if db in (None, "", ":memory:") else Path(f"{db}.spool")
     name = re.sub(r"[^A-Za-z0-9.-]+", "_", f"{url.host}_{url.port or ''}_{url.database}")
-    return Path("recal-spool") / name
+    return Path(state_dir) / "spool" / name

@@ -20,8 +20,41 @@ from service.config import Settings
 def check_startup(settings: Settings) -> None:
     """Raise :class:`RecalInputError` for the first setting that cannot work on this machine."""
     check_prior(settings.prior_path)
+    prepare_state_dir(settings)
     check_database(settings.database_url)
     check_api_port(settings.api.host, settings.api.port)
+
+
+def spool_folder(settings: Settings) -> Path | None:
+    """The spool's folder: ``spool_dir``, else its default (None: no spool)."""
+    from service.spool import default_spool_dir
+
+    if settings.spool_dir:
+        return Path(settings.spool_dir)
+    return default_spool_dir(settings.database_url, settings.state_dir)
+
+
+def prepare_state_dir(settings: Settings) -> Path | None:
+    """Create ``state_dir`` (and its parents) when a file the daemon writes goes in it: the
+    SQLite database, the published file or the spool, by default or given there. A fresh
+    user-level default (``~/.local/state/recal``) then works at the first start, while a
+    database folder given explicitly must still exist (:func:`check_database` says so).
+    Returns the folder when it is used, else None; RecalInputError when it cannot be made."""
+    state = Path(settings.state_dir)
+    spool = spool_folder(settings)
+    written = [_sqlite_folder(settings.database_url), Path(settings.publish_path).absolute(),
+               None if spool is None else spool.absolute()]  # fmt: skip
+    if not any(p is not None and p.is_relative_to(state) for p in written):
+        return None
+    try:
+        state.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecalInputError(
+            f"state_dir {state} cannot be created ({exc.strerror or exc}): set state_dir (or "
+            "STATE_DIRECTORY) to a writable folder, or give database_url, publish_path and "
+            "spool_dir"
+        ) from None
+    return state
 
 
 def check_prior(path: str | None) -> None:

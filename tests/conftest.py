@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,29 @@ def shared_data() -> Path:
             pytest.fail(f"shared data folder {SHARED_DATA} is missing under CI")
         pytest.skip(f"shared data folder {SHARED_DATA} not present")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session", autouse=True)
+def state_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The state folder of every daemon a test starts without its own paths: a session folder
+    (STATE_DIRECTORY, as systemd sets it), never the user's ~/.local/state/recal nor the working
+    folder (service.config.default_state_dir). Subprocesses inherit it."""
+    folder = tmp_path_factory.mktemp("state") / "recal"
+    patch = pytest.MonkeyPatch()
+    patch.setenv("STATE_DIRECTORY", str(folder))
+    try:
+        yield folder
+    finally:
+        patch.undo()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Hypothesis keeps its example database and constants cache in the system's temporary
+    folder, not in ``.hypothesis/`` of the working folder: a test run leaves no file there. Set
+    here, before the test modules are collected (the cache is written while they are)."""
+    from hypothesis.configuration import set_hypothesis_home_dir
+
+    set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "recal-tests-hypothesis")
 
 
 CHROMIUM = Path("/usr/bin/chromium")

@@ -292,3 +292,59 @@ def test_read_chunk_waits_for_a_useful_size() -> None:
     port.waiting = 0  # without a byte rate: one blocking read of the minimum size
     read_chunk(port, 1800, 4096)
     assert port.sizes[-1] == 1800
+
+
+def test_the_end_of_a_replayed_capture_is_the_end_of_input(tmp_path, capture) -> None:
+    """eof=idle (the default): at the end of the capture the reader delivers a last line that
+    has no newline, calls on_end once and says "ended"; a port that keeps going never does."""
+    rows = [f"{k / 100:.2f},0.1,0.2,0.3,0.01,0.02,1.0" for k in range(200)]
+    path = tmp_path / "log.csv"
+    path.write_text("time_s,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z\n" + "\n".join(rows))
+    q: queue.Queue = queue.Queue()
+    ends: list[int] = []
+    url = replay_url(path, speed="max")
+    with FrameReader(url, "csv", queue=q, on_end=lambda: ends.append(q.qsize())) as reader:
+        assert _wait_until(lambda: reader.health().state == "ended")
+        time.sleep(0.2)  # the reader keeps running, idle: on_end is not called again
+        health = reader.health()
+    got = drivers.FrameBatch.concat([q.get_nowait() for _ in range(q.qsize())])
+    assert len(got) == 200 and got.time_s[-1] == pytest.approx(1.99)  # the last line too
+    assert len(ends) == 1 and ends[0] >= 1  # after the last frame was delivered
+    assert health.running and "replayed to its end" in health.problem and health.ended_s > 0
+    looped = replay_url(capture, speed="max", eof="loop")
+    with FrameReader(looped, on_end=lambda: ends.append(-1)) as reader:
+        assert _wait_until(lambda: reader.health().counters.frames > 2 * 2999)
+        assert reader.health().state == "ok"
+    assert ends[1:] == []
+
+
+def test_socket_ports_are_read_in_chunks_not_bytes() -> None:
+    """pyserial's socket:// says 1 in in_waiting however much has come: read_chunk used to
+    take one byte per pause (8 kB/s for a CSV stream); it now takes what has come."""
+    import socket
+    import threading
+
+    from drivers.transport import read_chunk
+
+    data = bytes(range(256)) * 200  # 51 kB
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def send() -> None:
+        conn, _ = server.accept()
+        with conn:
+            time.sleep(0.3)  # after pyserial's open() has flushed its input
+            conn.sendall(data)
+            time.sleep(1.0)
+
+    thread = threading.Thread(target=send, daemon=True)
+    thread.start()
+    port = open_port(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.05)
+    got, reads = b"", 0
+    deadline = time.monotonic() + 5
+    while len(got) < len(data) and time.monotonic() < deadline:
+        got += read_chunk(port, 409, 4096, 8192.0)
+        reads += 1
+    port.close()
+    thread.join(5)
+    server.close()
+    assert got == data and reads < 40, reads

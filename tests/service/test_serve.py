@@ -44,7 +44,7 @@ def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path, sy
         assert systemd.wait_for(b"READY=1") == [b"READY=1"]
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as http:
             deadline = time.monotonic() + 60
-            # the last hold is still open while the stream idles: 23 windows have closed
+            # 23 windows close as the capture plays; the last one when it ends
             while http.get("/health").json()["positions"] < 23:
                 assert time.monotonic() < deadline, http.get("/health").json()
                 time.sleep(0.2)
@@ -65,4 +65,4 @@ def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path, sy
     store = Store(f"sqlite:///{db}")
     events = [e["kind"] for e in store.events(limit=100)]
     assert "start" in events and "stop" in events and "calibration" in events
-    assert store.count_positions() == 24  # the open window was closed on the way out
+    assert store.count_positions() == 24  # the last window was closed at the end of input

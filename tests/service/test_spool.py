@@ -144,10 +144,13 @@ def test_the_spool_folder_is_made_or_refused_clearly(tmp_path: Path) -> None:
 
     with pytest.raises(RecalInputError, match="spool_dir .*file.* cannot be created"):
         Spool(tmp_path / "file" / "spool")
-    assert default_spool_dir(f"sqlite:///{tmp_path}/recal.db") == tmp_path / "recal.db.spool"
-    assert default_spool_dir("sqlite://") is None  # in memory: a restart loses it all anyway
-    pg = default_spool_dir("postgresql+psycopg://u:secret@db.local:5433/recal")
-    assert pg == Path("recal-spool/db.local_5433_recal")  # one per database, no secret
+    state = tmp_path / "state"
+    db = f"sqlite:///{tmp_path}/recal.db"
+    assert default_spool_dir(db, state) == tmp_path / "recal.db.spool"
+    assert default_spool_dir("sqlite://", state) is None  # in memory: a restart loses it all
+    pg = default_spool_dir("postgresql+psycopg://u:secret@db.local:5433/recal", state)
+    # one per database, no secret, under the state folder (never the working folder)
+    assert pg == state / "spool" / "db.local_5433_recal"
 
 
 # ---- through Ingest ---------------------------------------------------------------------------

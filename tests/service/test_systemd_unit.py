@@ -38,7 +38,9 @@ def test_the_unit_keeps_the_watchdog_and_confines_writes_and_devices() -> None:
     # the folders deploy/recal.toml writes to: database (state) and published file (runtime)
     assert s["StateDirectory"] == ["recal"] and s["RuntimeDirectory"] == ["recal"]
     assert s["ReadWritePaths"] == ["/var/lib/recal /run/recal"]
-    assert s["WorkingDirectory"] == ["/var/lib/recal"]  # an unset spool_dir lands here
+    # the state folder: systemd sets STATE_DIRECTORY, the daemon's state_dir, from it
+    assert s["WorkingDirectory"] == ["/var/lib/recal"]  # relative paths land there too
+    assert not any("STATE_DIRECTORY" in v for v in s.get("Environment", []))  # systemd's own
     assert s["DevicePolicy"] == ["closed"] and "char-ttyUSB rw" in s["DeviceAllow"]
     assert "PrivateDevices" not in s  # it would hide the serial port
     assert set(s["RestrictAddressFamilies"][0].split()) == {"AF_UNIX", "AF_INET", "AF_INET6"}
