@@ -343,7 +343,9 @@ def estimate_wander(
             gain = 2.0 * (n0 - best[0])
             keep = gain > WANDER_SIGNIFICANCE
             upper = _sigma_upper(pick[3], pick[1], SIGMA_UPPER_DELTA)
-            fits.append(WanderFit(s, pick[1], pick[2], gain, keep, best[1], best[2], upper))
+            fits.append(
+                WanderFit(s, pick[1], pick[2], gain, keep, best[1], best[2], sigma_upper=upper)
+            )
             if keep:
                 found[s] = TriadWander(np.full(3, pick[1]), np.full(3, pick[2]))
             else:
@@ -419,3 +421,59 @@ def possible_wander(noise_model: Mapping[str, Any] | None) -> WanderModel | None
     if not triads:
         return None
     return WanderModel(triads, "the accepted version's, each triad at its upper bound")
+
+
+def innovations(
+    residual: np.ndarray,
+    signature: np.ndarray,
+    noise_cov: np.ndarray,
+    H: Mapping[str, np.ndarray],
+    t: np.ndarray | None,
+    sessions: np.ndarray | None,
+    model: WanderModel,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The window residuals as a Kalman filter's innovations under the wander, for tests that
+    take windows in order and need them independent (the drift test's GLR).
+
+    residual (M, K), signature (M, K, D) (d residual / d a coefficient change), noise_cov
+    (M, K, K) the windows' own noise; H: sensor -> (M, K, 3) d residual / d that triad's output
+    per axis; the wander state (one per axis of each triad in ``model``) follows its
+    Gauss-Markov law between windows (restarted at each session). Returns the innovations
+    nu_k = r_k - H x_k|k-1, the signatures run through the same filter (a change present from
+    the first window; a step later in the window sequence is approximated by it) and the
+    innovations' covariance S_k = H P H^T + R_k. Independent when the model is right."""
+    M, K = residual.shape
+    names = [s for s in ("gyro", "accel") if s in model.triads and s in H]
+    if not names:
+        return residual, signature, noise_cov
+    sig = np.concatenate([model.triads[s].sigma for s in names])
+    tau = np.concatenate([model.triads[s].tau_s for s in names])
+    Hall = np.concatenate([H[s] for s in names], axis=2)  # (M, K, n)
+    n = len(sig)
+    D = signature.shape[2]
+    nu, A2, S2 = residual.copy(), signature.copy(), noise_cov.copy()
+    x, XA, P = np.zeros(n), np.zeros((n, D)), np.diag(sig**2)
+    for k in range(M):  # a filter over windows: each step is a few small matrix products
+        first = k == 0 or (sessions is not None and sessions[k] != sessions[k - 1])
+        if first:
+            x, XA, P = np.zeros(n), np.zeros((n, D)), np.diag(sig**2)
+        else:
+            gap = 0.0 if t is None else max(float(t[k] - t[k - 1]), 0.0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                phi = np.where(tau > 0, np.exp(-gap / np.where(tau > 0, tau, 1.0)), 0.0)
+            if t is None:
+                phi = np.zeros(n)
+            x, XA = phi * x, phi[:, None] * XA
+            P = phi[:, None] * P * phi[None, :] + np.diag(sig**2 * (1.0 - phi**2))
+        Hk = Hall[k]
+        Sk = Hk @ P @ Hk.T + noise_cov[k]
+        Sk = 0.5 * (Sk + Sk.T)
+        nu[k] = residual[k] - Hk @ x
+        A2[k] = signature[k] - Hk @ XA
+        S2[k] = Sk
+        gain = np.linalg.solve(Sk, Hk @ P).T  # P H^T S^-1, (n, K)
+        x = x + gain @ nu[k]
+        XA = XA + gain @ A2[k]
+        P = P - gain @ Hk @ P
+        P = 0.5 * (P + P.T)
+    return nu, A2, S2
