@@ -148,3 +148,53 @@ def test_mirrored_sections_build_their_configs_and_share_defaults() -> None:
             assert getattr(built, name) == getattr(cls(), name) == getattr(section, name), name
     tuned = config_from(DetectorConfig, DetectorSettings(threshold_k=7.0), sample_rate_hz=200.0)
     assert (tuned.threshold_k, tuned.sample_rate_hz) == (7.0, 200.0)
+
+
+_DEFAULT_ROW = re.compile(r"^\|\s*`(\w+)`\s*\|\s*`([^`]*)`\s*\|", re.M)
+
+
+def _documented_defaults(text: str) -> dict[str, str]:
+    """``section.key`` -> the default column's TOML literal, where it is one (rows whose
+    default is prose, "unset" or "measured", are not compared)."""
+    start = text.index("## Configuration")
+    end = text.find("\n## ", start + 1)
+    part = text[start : end if end > 0 else None]
+    out = {}
+    headings = list(_HEADING.finditer(part))
+    for i, h in enumerate(headings):
+        body = part[h.end() : headings[i + 1].start() if i + 1 < len(headings) else None]
+        prefix = f"{h.group(1)}." if h.group(1) else ""
+        out |= {prefix + k: v for k, v in _DEFAULT_ROW.findall(body)}
+    return out
+
+
+def _default(key: str):
+    """The default the daemon uses for ``section.key``."""
+    value = Settings()
+    for part in key.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def test_documented_defaults_are_the_shipped_ones() -> None:
+    """docs/service.md's default column against ``Settings()``, side by side: a default that
+    changes in the code and not in the documentation (or the reverse) fails here."""
+    documented = _documented_defaults(DOC.read_text())
+    compared, wrong = 0, []
+    for key, literal in documented.items():
+        try:
+            doc_value = tomllib.loads(f"x = {literal}")["x"]
+        except tomllib.TOMLDecodeError:
+            continue  # a path or a placeholder, not a literal
+        actual = _default(key)
+        actual = list(actual) if isinstance(actual, tuple) else actual
+        if hasattr(actual, "value"):  # an enum
+            actual = actual.value
+        compared += 1
+        if doc_value != actual and not (
+            isinstance(actual, float | int) and isinstance(doc_value, float | int)
+            and float(doc_value) == float(actual)
+        ):  # fmt: skip
+            wrong.append(f"{key}: documented {literal}, shipped {actual!r}")
+    assert compared >= 40, compared
+    assert not wrong, wrong
