@@ -168,3 +168,12 @@ def test_the_readme_examples_run_in_order(tmp_path: Path) -> None:
         assert time.perf_counter() - t0 < COMMAND_TIMEOUT_S
     assert not failures, "\n".join(failures)
     assert ran >= 12, f"only {ran} README commands ran"
+
+
+def test_ci_runs_the_readme_test_command() -> None:
+    """.ci/run calls exactly the README's second command, so a missing install step shows."""
+    blocks = re.findall(r"```bash\n(.*?)```", README.read_text(), re.S)
+    command = blocks[1].strip()
+    ci = (PROJECT / ".ci" / "run").read_text().splitlines()
+    marker = next(i for i, line in enumerate(ci) if "README test command" in line)
+    assert ci[marker + 1].startswith(command), (ci[marker + 1], command)
