@@ -1023,7 +1023,7 @@ def _with_wander(
             {"sensor": f.sensor, "gain_2lnL": round(float(f.gain), 3), "threshold": WANDER_TEST,
              "significant": bool(f.significant), "sigma": float(f.sigma),
              "tau_s": float(f.tau_s), "sigma_ml": float(f.sigma_ml), "tau_ml_s": float(f.tau_ml_s),
-             "sigma_upper": float(f.sigma_upper),
+             "sigma_carried": float(f.sigma_carried), "sigma_upper": float(f.sigma_upper),
              **({} if f.joint_gain is None else {"joint_gain_2lnL": round(float(f.joint_gain), 3)})}
             for f in fits
         ]  # fmt: skip
