@@ -873,28 +873,45 @@ def _core_indices(names: list[str]) -> list[int]:
             and any(c in nm for c in core) and nm.count(".") == 2]  # fmt: skip
 
 
+def _core_shift(
+    names0: Sequence[str],
+    theta0: np.ndarray,
+    sd0: np.ndarray,
+    names1: Sequence[str],
+    theta1: np.ndarray,
+    most: int = 3,
+) -> dict[str, float]:
+    """How far the seed coefficients (scale, bias, misalignment) move from one model (``names0``,
+    ``theta0`` with 1-sigma ``sd0``) to another (``names1``, ``theta1``): coefficient -> shift in
+    units of that 1-sigma, the ``most`` largest by size, largest first. A coefficient the other
+    model lacks, or whose 1-sigma is not above 0 (NaN: held, or not to be compared), is left
+    out."""
+    where = {nm: j for j, nm in enumerate(names1)}
+    shifts: dict[str, float] = {}
+    for i in _core_indices(list(names0)):
+        j = where.get(names0[i])
+        if j is None or not sd0[i] > 0:
+            continue
+        shifts[names0[i]] = float((theta1[j] - theta0[i]) / sd0[i])
+    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:most]
+    return {k: shifts[k] for k in top}
+
+
 def _trade_off(cand: Candidate, current: Fit, fit: Fit, sl: slice) -> None:
     """How far the effect moves the seed coefficients (in their current 1-sigma) and whether
     it trades off with them in the extended model (module doc)."""
-    names0, names1 = current.problem.layout.names, fit.problem.layout.names
-    where1 = {nm: i for i, nm in enumerate(names1)}
     if current.sd is None or fit.cov is None:
         return
-    shifts: dict[str, float] = {}
-    for i in _core_indices(names0):
-        j = where1.get(names0[i])
-        sd0 = current.sd[i]
-        if j is None or not np.isfinite(sd0) or sd0 <= 0:
-            continue
-        shifts[names0[i]] = float((fit.theta[j] - current.theta[i]) / sd0)
+    names1 = fit.problem.layout.names
+    shifts = _core_shift(current.problem.layout.names, current.theta,
+                         np.where(np.isfinite(current.sd), current.sd, np.nan), names1, fit.theta)  # fmt: skip
     if not shifts:
         return
-    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:3]
-    cand.core_shift = {k: shifts[k] for k in top}
+    cand.core_shift = shifts
     cov = fit.cov
     eff = np.arange(cov.shape[0])[sl]
-    name = top[0]
-    j = where1[name]
+    name = next(iter(shifts))
+    j = names1.index(name)
     corr = _multiple_correlation(cov, j, eff)
     cand.trade_off = {"coefficient": name, "shift_sigma": shifts[name], "correlation": corr}
     if abs(shifts[name]) > CORE_SHIFT_SIGMA:
@@ -952,15 +969,11 @@ def _trust(d: Diagnosis, fit0: Fit, final: Fit, picked: Sequence[Candidate]) -> 
     CORE_SHIFT_SIGMA."""
     if not picked or fit0.sd is None:
         return
-    where = {nm: i for i, nm in enumerate(final.problem.layout.names)}
-    names0 = fit0.problem.layout.names
-    shifts = {}
-    for i in _core_indices(names0):
-        j, sd0 = where.get(names0[i]), fit0.sd[i]
-        if j is not None and np.isfinite(sd0) and sd0 > 0:
-            shifts[names0[i]] = float((final.theta[j] - fit0.theta[i]) / sd0)
-    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:3]
-    d.core_shift = {k: shifts[k] for k in top}
+    shifts = _core_shift(fit0.problem.layout.names, fit0.theta,
+                         np.where(np.isfinite(fit0.sd), fit0.sd, np.nan),
+                         final.problem.layout.names, final.theta)  # fmt: skip
+    top = list(shifts)
+    d.core_shift = shifts
     if not top or abs(shifts[top[0]]) <= CORE_SHIFT_SIGMA and all(c.trustworthy for c in picked):
         return
     d.trustworthy = False
@@ -984,16 +997,10 @@ def effects_check(result: CalibrationResult, options: CalibrationOptions) -> dic
     if not effects:
         return None
     seed = calibrate(result.problem.positions, replace(options, effects=()))
-    where = {nm: i for i, nm in enumerate(result.layout.names)}
     sd0 = np.concatenate([seed.uncertainty[n] for n in seed.layout.term_slices()])
-    shifts = {}
-    for i in _core_indices(seed.layout.names):
-        nm = seed.layout.names[i]
-        j = where.get(nm)
-        if j is None or not seed.observability.estimated[i] or not sd0[i] > 0:  # NaN: held
-            continue
-        shifts[nm] = float((result.theta[j] - seed.theta[i]) / sd0[i])
-    top = sorted(shifts, key=lambda k: -abs(shifts[k]))[:3]
+    sd0 = np.where(seed.observability.estimated, sd0, np.nan)  # held: not compared
+    shifts = _core_shift(seed.layout.names, seed.theta, sd0, result.layout.names, result.theta)
+    top = list(shifts)
     trustworthy = not top or abs(shifts[top[0]]) <= CORE_SHIFT_SIGMA
     needs = frozenset().union(*(result.terms[e].needs for e in effects))
     warning = "" if trustworthy else (
@@ -1004,7 +1011,7 @@ def effects_check(result: CalibrationResult, options: CalibrationOptions) -> dic
         f"{_look_alikes(needs)} would fit as well; check: {SHIFT_CHECKS}"
     )  # fmt: skip
     return {"effects": effects, "trustworthy": trustworthy,
-            "core_shift": {k: shifts[k] for k in top}, "seed_chi2_red": _finite(seed.chi2_red),
+            "core_shift": shifts, "seed_chi2_red": _finite(seed.chi2_red),
             "warning": warning}  # fmt: skip
 
 
