@@ -13,10 +13,11 @@ import numpy as np
 
 from recal.model.error_model import ParameterLayout
 from recal.model.plugins import bind_context, values_by_term
-from recal.solve.calibrate import UNITS, CalibrationOptions, CalibrationResult, build_models
+from recal.solve.calibrate import CalibrationOptions, CalibrationResult, build_models
 from recal.solve.lm import covariance, solve_lm
 from recal.solve.observability import analyze, jacobian
 from recal.solve.problem import Problem
+from recal.solve.result_json import UNITS
 from recal.solve.slew_fit import blind_gyro, blind_gyro_models
 
 

@@ -28,12 +28,13 @@ import numpy as np
 
 from recal.detect.slews import KnownRotations, Slews
 from recal.errors import RecalInputError
-from recal.model.coefficients import CoefficientSet, layout_like
+from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.plugins import bind_context, plugin_file, values_by_term
 from recal.model.positions import Positions
 from recal.model.reference import OMEGA_IE_DEG_H
 from recal.model.terms import Term, catalogue_terms
+from recal.solve import result_json
 from recal.solve.believable import unbelievable
 from recal.solve.consider import consider_covariance, prior_sigma, sensor_class
 from recal.solve.convergence import fixed_point, projected_start, swarm_convergence
@@ -48,6 +49,7 @@ from recal.solve.observability import (
 )
 from recal.solve.phases import paper_phases, whitened_phase
 from recal.solve.problem import Problem
+from recal.solve.result_json import MC_KIND, MC_KIND_PAPER, UNITS  # noqa: F401 - re-exported, were defined here
 from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, were defined here
     SLEW_EXCESS_SIGNIFICANCE,
     SLEW_GYRO_BIAS_TYPICAL_DPH,
@@ -78,21 +80,6 @@ from recal.solve.wander_fit import (  # noqa: F401 - WANDER_*: re-exported, were
 METHODS = ("lm",) + SWARM_METHODS
 #: The steps :func:`calibrate` reports to its ``progress`` callback with LM (one call each).
 LM_STEPS = ("set-up", "observability", "fit", "fixed point", "uncertainty")
-UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
-         "rotation": "rad", "closure": "rad"}  # fmt: skip
-
-
-#: What the Monte Carlo spread means (the JSON's mc.kind): each run on perturbed data ...
-MC_KIND = (
-    "spread over the Monte Carlo runs, each run fitted to the data perturbed by its window noise "
-    "(antithetic pairs): the measurement uncertainty plus the solver's own scatter, a check on "
-    "'uncertainty' (the Gauss-Newton 1-sigma, which the product reports)"
-)
-#: ... or, in paper mode, every run on the same data
-MC_KIND_PAPER = (
-    "spread over the Monte Carlo runs on the same data: solver repeatability, not measurement "
-    "uncertainty (see 'uncertainty')"
-)
 
 
 @dataclass(frozen=True)
@@ -198,132 +185,14 @@ class CalibrationResult:
         return {t.name: t for m in self.problem.models for t in m.terms}
 
     def residual_summary(self) -> dict[str, Any]:
-        before = self.problem.raw_residuals(self.theta_prior[None])
-        after = self.problem.raw_residuals(self.theta[None])
-        ind_before = self.problem.indicator(self.theta_prior[None])
-        ind_after = self.problem.indicator(self.theta[None])
-        out = {}
-        for n in self.problem.invariant_names:
-            noise = self.problem.noise_known_for(n)
-            out[n] = {
-                "unit": UNITS[n],
-                "reference": self.problem.reference(n),
-                "rms_before": float(np.sqrt(np.mean(before[n] ** 2))),
-                "rms_after": float(np.sqrt(np.mean(after[n] ** 2))),
-                "noise_floor": float(np.sqrt(np.mean(self.problem.sigma[n] ** 2)))
-                if noise
-                else None,
-                "noise_source": self.problem.sigma_source.get(n),
-                "indicator_eq14_before": float(ind_before[n][0]),
-                "indicator_eq14_after": float(ind_after[n][0]),
-                "per_position": [float(v) for v in after[n][0]],
-            }
-            if n in ("gyro_norm", "dot") and self.problem.gyro_rows is not None:
-                # accelerometer-only windows (gyro not still) are left out: name the rows
-                out[n]["rows"] = [int(i) for i in self.problem.gyro_rows]
-            if n == "rotation":
-                out[n]["per_rotation"] = out[n].pop("per_position")
-                out[n]["rotations"] = self.problem.n_of(n) // 3
-                if noise:
-                    w = after[n][0] / self.problem.sigma[n]
-                    out[n]["chi2_red"] = float(np.mean(w * w))
-            if n == "closure":
-                turns = self.problem.closed_turns
-                assert turns is not None
-                out[n]["per_turn"] = out[n].pop("per_position")
-                out[n]["slews"] = [int(i) for i in turns.index]
-                out[n]["turns"] = [int(k) for k in turns.turns]
-                out[n]["how"] = [
-                    c.how for i in turns.index for c in self.problem.turn_candidates if c.slew == i
-                ]
-                out[n]["closure_sigma_deg"] = [float(v) for v in np.degrees(turns.sigma_rad)]
-                if noise:
-                    w = after[n][0] / self.problem.sigma[n]
-                    out[n]["chi2_red"] = float(np.mean(w * w))
-            if n == "slew":
-                out[n]["per_slew"] = out[n].pop("per_position")
-                excess = float(self.problem.slew_excess_rad)
-                out[n]["unmodelled_excess_rad"] = excess
-                if noise and excess > 0:  # the floor above includes it: the windows' own too
-                    var = np.clip(self.problem.sigma[n] ** 2 - excess**2, 0, None)
-                    out[n]["window_noise_floor"] = float(np.sqrt(np.mean(var)))
-                out[n]["slews"] = self.problem.n_of(n) // 2
-                out[n]["earth_rate"] = (
-                    "removed with the first window's calibrated rest rate"
-                    if self.problem.slew_earth_rate
-                    else "left in, as noise (the gyro cannot see Earth rate)"
-                )
-                if noise:
-                    w = after[n][0] / self.problem.sigma[n]
-                    out[n]["chi2_red"] = float(np.mean(w * w))
-        return out
+        return result_json.residual_summary(self)
 
     def uncertainty_kind(self) -> str:
         """What the 1-sigma values mean, and which noise they come from."""
-        sources = ", ".join(sorted(set(self.problem.sigma_source.values())))
-        held = (
-            "; plus what the held coefficients' prior uncertainty moves them by (consider "
-            "covariance); a held coefficient's 1-sigma is its prior's"
-        )
-        if self.problem.noise_known:
-            return (
-                f"Gauss-Newton 1-sigma from the window noise ({sources}) propagated through the "
-                "invariants (scaled by max(1, chi2_red))" + held
-            )
-        if self.observability.redundancy == 0:
-            return "unknown: no noise columns and no redundancy to estimate the noise from"
-        return (
-            f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})"
-            + held
-        )
+        return result_json.uncertainty_kind(self)
 
     def to_json_dict(self) -> dict[str, Any]:
-        terms = self.terms
-        out: dict[str, Any] = {
-            "coefficients": self.coefficients.to_json_dict(terms),
-            "status": layout_like(self.status, str, terms),
-            "uncertainty": layout_like(
-                self.uncertainty, lambda v: None if not np.isfinite(v) else float(v), terms
-            ),
-            "uncertainty_kind": self.uncertainty_kind(),
-            "noise_source": dict(self.problem.sigma_source),
-            "observability": self.observability.to_json_dict(),
-            "residuals": self.residual_summary(),
-            "chi2_red": self.chi2_red if np.isfinite(self.chi2_red) else None,
-            "method": self.method,
-            "sensor": "both" if len(self.problem.sensors) == 2 else self.problem.sensors[0],
-            "positions": self.problem.M,
-            "latitude_deg": self.problem.latitude_deg,
-            "height_m": self.problem.height_m,
-            "gravity_g": self.problem.gravity_g,
-            "earth_rate_deg_h": OMEGA_IE_DEG_H,
-            "prior": self.prior_source,
-            "evaluations": self.evaluations,
-            "wall_time_s": self.wall_time_s,
-            "notes": self.notes,
-        }
-        if self.noise_model:
-            out["noise_model"] = dict(self.noise_model)
-        if self.problem.turn_candidates:
-            out["turn_closure"] = {
-                "declared_sigma_deg": self.turn_closure_declared_deg or None,
-                "candidates": [c.to_json_dict() for c in self.problem.turn_candidates],
-            }
-        if self.convergence:
-            out["converged"] = bool(self.convergence.get("converged"))
-            out["convergence"] = dict(self.convergence)
-        if self.held_uncertainty is not None:
-            out["held_uncertainty"] = self.held_uncertainty.to_json_dict()
-        if self.mcs is not None:
-            split = CoefficientSet.from_vector
-            out["mc"] = {
-                "runs": int(self.mcs.runs.shape[0]),
-                "cycles": self.mcs.cycles,
-                "mean": split(self.layout, self.mcs.mean).to_json_dict(terms),
-                "std": split(self.layout, self.mcs.std).to_json_dict(terms),
-                "kind": MC_KIND_PAPER if self.method.endswith("(paper mode)") else MC_KIND,
-            }
-        return out
+        return result_json.result_json(self)
 
 
 def build_models(
