@@ -32,12 +32,16 @@ from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.plugins import bind_context, plugin_file, values_by_term
 from recal.model.positions import Positions
-from recal.model.reference import OMEGA_IE_DEG_H
 from recal.model.terms import Term, catalogue_terms
 from recal.solve import result_json
 from recal.solve.believable import unbelievable
-from recal.solve.consider import consider_covariance, prior_sigma, sensor_class
+from recal.solve.consider import consider_covariance
 from recal.solve.convergence import fixed_point, projected_start, swarm_convergence
+from recal.solve.earth_rate import (  # noqa: F401 - scale_noise_needed: re-exported
+    MIN_EARTH_RATE_CONTRAST,
+    _earth_rate_invisible,
+    scale_noise_needed,
+)
 from recal.solve.lm import covariance, solve_lm
 from recal.solve.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
 from recal.solve.observability import (
@@ -48,6 +52,7 @@ from recal.solve.observability import (
     analyze,
 )
 from recal.solve.phases import paper_phases, whitened_phase
+from recal.solve.prior import HeldUncertainty, _gyro_prior_sigma, _prior_uncertainty, describe_prior
 from recal.solve.problem import Problem
 from recal.solve.result_json import MC_KIND, MC_KIND_PAPER, UNITS  # noqa: F401 - re-exported, were defined here
 from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, were defined here
@@ -67,7 +72,7 @@ from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, 
     slew_excess,
     slew_prior,
 )
-from recal.solve.start import DataPrior, data_prior, references
+from recal.solve.start import data_prior, references
 from recal.solve.swarm import SwarmConfig
 from recal.solve.wander_fit import (  # noqa: F401 - WANDER_*: re-exported, were defined here
     WANDER_MAX_RESIDUALS,
@@ -125,27 +130,6 @@ class CalibrationOptions:
     #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
     #: a missing effect can drag the baseline fit there, and the candidates must still be tried
     refuse_at_solution: bool = True
-
-
-class HeldUncertainty(NamedTuple):
-    """The prior's 1-sigma that the held coefficients carry into ``CalibrationResult.covariance``."""
-
-    sensor_class: str  # which defaults a data-derived prior used (recal.solve.consider)
-    source: dict[str, str]  # term name -> where its prior sigma came from
-    sigma: np.ndarray  # (D,) prior 1-sigma per parameter
-
-    def to_json_dict(self) -> dict[str, Any]:
-        return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
-
-    def bar(self, layout: ParameterLayout, typical: np.ndarray) -> np.ndarray:
-        """(D,) the observability bar (recal.solve.observability.analyze ``bar``): a prior
-        file's 1-sigma over the typical change where it is looser, else 1. Class defaults and a
-        data-derived start's own 1-sigma are guesses, not knowledge: they never lower it."""
-        out = np.ones(len(typical))
-        for name, sl in layout.term_slices().items():
-            if self.source.get(name, "").startswith("prior file"):
-                out[sl] = np.maximum(self.sigma[sl] / typical[sl], 1.0)
-        return out
 
 
 @dataclass
@@ -221,111 +205,6 @@ def _plugin_metadata(layout: ParameterLayout) -> dict[str, Any]:
     files = {t.name: plugin_file(t) for t in layout.term_of()}
     files = {n: f for n, f in files.items() if f is not None}
     return {"plugins": files} if files else {}
-
-
-def describe_prior(
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    how: dict[str, str],
-    given: CoefficientSet | None = None,
-    gyro_from_slews: bool = False,
-) -> str:
-    """What the prior ``theta0`` is, true to its values: the given file and the terms it lacks
-    (taken from the data), how each triad's scale and bias were derived from the data (``how``,
-    :class:`recal.solve.start.DataPrior`: an ellipsoid fit, or a common scale from the median
-    norm when the positions cannot support one; the slews for a gyro blind to Earth rate), and
-    which other terms start at zero."""
-    slices = layout.term_slices()
-    from_data = [t for m in layout.models for t in m.terms
-                 if given is None or given.values.get(t.name) is None]  # fmt: skip
-    parts = []
-    for m in layout.models:
-        if not any(t.name in (f"{m.sensor}.scale", f"{m.sensor}.bias") for t in from_data):
-            continue
-        if m.sensor == "gyro" and gyro_from_slews:
-            parts.append("gyro: common scale from the slews, bias the mean window output")
-        else:
-            parts.append(f"{m.sensor}: {how[m.sensor]}")
-    zero = [t.name for t in from_data if t.group not in ("scale", "bias")
-            and np.all(theta0[slices[t.name]] == np.asarray(t.neutral, float))]  # fmt: skip
-    if zero:
-        parts.append(f"{', '.join(zero)} zero")
-    other = [t.name for t in from_data if t.group not in ("scale", "bias") and t.name not in zero]
-    if other:
-        parts.append(f"{', '.join(other)} from the data")
-    if given is None:
-        return f"data-derived ({'; '.join(parts)})"
-    source = str(given.metadata.get("source", "given prior"))
-    return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
-
-
-#: Position-to-position spread of the gyro outputs, in window-noise units, below which Earth
-#: rate is not visible (a navigation FOG shows thousands, a KVH-class FOG hundreds; the MEMS
-#: recording in ../shared shows 25, from bias instability, not Earth rate).
-MIN_EARTH_RATE_CONTRAST = 50.0
-
-
-def scale_noise_needed(n_positions: int, relative: float = 1e-3) -> float:
-    """Window-mean gyro noise, deg/h, that pins each scale factor to ``relative`` from
-    ``n_positions`` random orientations.
-
-    d|w|/d(ln K_i) = -Omega u_i^2; for uniform directions the information matrix
-    (Omega / sigma)^2 sum u_i^2 u_j^2 has an inverse diagonal of 6 / M, so
-    sd(ln K_i) ~ sigma / Omega * sqrt(6 / M). Estimating bias and misalignment alongside costs
-    about a factor 2 (checked against :func:`recal.solve.observability.analyze`), hence sqrt(M / 24).
-    """
-    return relative * OMEGA_IE_DEG_H * np.sqrt(n_positions / 24.0)
-
-
-def _earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None) -> str | None:
-    """Why Earth rate cannot calibrate this gyro, or None: the outputs must change with
-    orientation well beyond the window-mean noise.
-
-    The reason names the cause -- the contrast, the noise and the hold length -- and what would
-    be needed: the noise of a window mean falls as 1/sqrt(hold) (white noise), so the contrast
-    grows as sqrt(hold). ``scale`` (output units per deg/h, e.g. from the prior) expresses the
-    noise in deg/h and gives the hold that pins the scale factors to their typical change;
-    without it the noise stays in output units.
-    """
-    seen = positions.gyro_contrast()
-    if seen is None:
-        return None
-    contrast, axis = seen
-    sem = np.maximum(np.median(positions.std_of_mean("gyro"), axis=0), 1e-300)
-    if contrast >= MIN_EARTH_RATE_CONTRAST:
-        return None
-    gain = 1.0 if scale is None else abs(float(np.asarray(scale, float)[axis]))
-    unit = "output units" if scale is None else "deg/h"
-    noise_in = sem[axis] / gain
-    cols = positions.columns
-    hold = (
-        float(np.median(cols["end_s"] - cols["start_s"]))
-        if "start_s" in cols and "end_s" in cols
-        else None
-    )
-
-    def holds_for(factor: float) -> str:  # white noise: sigma ~ 1/sqrt(hold)
-        return (
-            f"holds about {factor:.3g}x longer"
-            if hold is None
-            else f"holds of about {hold * factor:.3g} s"
-        )
-
-    M = len(positions)
-    pinned = scale_noise_needed(M)
-    visible = holds_for((MIN_EARTH_RATE_CONTRAST / contrast) ** 2)
-    then = f"pinning the scale factors to 1000 ppm from {M} positions then needs a window-mean noise of about {pinned:.2g} deg/h"
-    if scale is not None:
-        then += f" ({holds_for((noise_in / pinned) ** 2)})"
-    caveat = (
-        " if the noise averages down" if positions.noise_source("gyro") == "sem columns" else ""
-    )
-    return (
-        f"gyro outputs differ between positions by only {contrast:.3g}x the window-mean noise "
-        f"({noise_in:.3g} {unit}" + ("" if hold is None else f" from {hold:.3g} s holds") + "): "
-        f"Earth rate ({OMEGA_IE_DEG_H:.5f} deg/h) is not visible; it needs "
-        f"{MIN_EARTH_RATE_CONTRAST:.0f}x: {visible} at this noise{caveat}; {then}"
-    )
 
 
 def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...]:
@@ -560,36 +439,6 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     prior_source = describe_prior(layout, theta0, start.how, opt.prior,
                                   gyro_from_slews=blind and opt.prior is None)  # fmt: skip
     return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical, held, first)
-
-
-def _gyro_prior_sigma(
-    positions: Positions,
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    opt: CalibrationOptions,
-    start: DataPrior,
-) -> dict[str, np.ndarray]:
-    """The gyro's prior 1-sigma (bias deg/h, scale in its units) as the held coefficients get it
-    (:func:`_prior_uncertainty`), for the Earth-rate heading check of closed turns."""
-    own = start.sigma if opt.prior is None and start.sigma.shape == theta0.shape else None
-    held = _prior_uncertainty(positions, layout, theta0, layout.typical(theta0), opt, own)
-    sl = layout.term_slices()
-    return {n: held.sigma[sl[n]] for n in ("gyro.bias", "gyro.scale")}
-
-
-def _prior_uncertainty(
-    positions: Positions,
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    typical: np.ndarray,
-    opt: CalibrationOptions,
-    start_sigma: np.ndarray | None = None,
-) -> HeldUncertainty:
-    """The prior's 1-sigma per parameter (recal.solve.consider.prior_sigma) and where it came from."""
-    cls = sensor_class(positions, layout, theta0, MIN_EARTH_RATE_CONTRAST)
-    given = opt.prior.uncertainty if opt.prior else None
-    sigma, source = prior_sigma(layout, theta0, typical, given, cls, start_sigma)
-    return HeldUncertainty(cls, source, sigma)
 
 
 def check_design(
