@@ -31,10 +31,17 @@ REMOVED_IN = "0.3.0"
 
 #: Old module -> the modules its names live in now, searched in order (``recal.static`` was
 #: split into the detector, its noise floor and the window table; ``recal.mcs`` lost its worker
-#: processes to ``recal.runtime.pool``). From ``git log --diff-filter=R`` (commit 48a3624).
+#: processes to ``recal.runtime.pool``; parts of ``recal.calibrate`` went on to the slews', the
+#: prior's and the Earth-rate modules of recal.solve). From ``git log --diff-filter=R`` (commit
+#: 48a3624).
 MOVED: dict[str, tuple[str, ...]] = {
     "recal.alignment": ("recal.nav.alignment",),
-    "recal.calibrate": ("recal.solve.calibrate",),
+    "recal.calibrate": (
+        "recal.solve.calibrate",
+        "recal.solve.slew_fit",
+        "recal.solve.prior",
+        "recal.solve.earth_rate",
+    ),
     "recal.coefficient_schema": ("recal.model.coefficient_schema",),
     "recal.coefficients": ("recal.model.coefficients",),
     "recal.consider": ("recal.solve.consider",),

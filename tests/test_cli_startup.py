@@ -94,7 +94,22 @@ def test_constants_repeated_for_the_parser_match_their_source(module, constant, 
 
 
 def test_record_formats_are_the_registered_ones():
-    from drivers.formats import format_names
+    """``recal record --format`` takes its choices from drivers.formats when it is used, not
+    from a list written in the CLI: a format registered after the parser was built counts."""
+    import dataclasses
+
+    from drivers.formats import format_names, get_format, register, unregister
+    from service.cli.main import build_parser
     from service.cli.record import FORMATS
 
-    assert set(FORMATS) == set(format_names())
+    assert list(FORMATS) == format_names()
+    parser = build_parser()
+    toy = dataclasses.replace(get_format("kvh-a"), name="toy-frames", aliases=())
+    register(toy)
+    try:
+        assert "toy-frames" in FORMATS
+        args = parser.parse_args(["record", "loop://", "out.bin", "--format", "toy-frames"])
+        assert args.format == "toy-frames"
+    finally:
+        unregister("toy-frames")
+    assert "toy-frames" not in FORMATS

@@ -946,7 +946,7 @@ def slew_sigma(
       per component.
 
     * ``excess_rad``: an unmodelled error per slew residual, estimated from the slews' own
-      misfit (:func:`recal.solve.calibrate.slew_excess`), 0 when they fit to their noise.
+      misfit (:func:`recal.solve.slew_fit.slew_excess`), 0 when they fit to their noise.
 
     gyro_std_in, gyro_sem_in, accel_sem_in: (M, 3) per window in input units.
     """
@@ -1036,7 +1036,7 @@ class HeadingCheck(NamedTuple):
     force (g); rate_sem_dph: (M, 3) the standard error of the window's mean rate, deg/h, or None
     (no noise columns); latitude_deg; bias_sigma_dph (3,) and scale_sigma_rel (3,): the gyro's
     prior 1-sigma (bias, deg/h; scale factor, relative); earth_rate: whether the gyro resolves
-    Earth rate in a window (:func:`recal.solve.calibrate._slews_see_earth_rate`)."""
+    Earth rate in a window (:func:`recal.solve.slew_fit._slews_see_earth_rate`)."""
 
     rate_dph: np.ndarray
     force_g: np.ndarray

@@ -26,17 +26,22 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from recal.detect.slews import CHECKED, DEG_H_TO_RAD_S, KnownRotations, Slews
+from recal.detect.slews import KnownRotations, Slews
 from recal.errors import RecalInputError
-from recal.model.coefficients import CoefficientSet, layout_like
+from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.plugins import bind_context, plugin_file, values_by_term
 from recal.model.positions import Positions
-from recal.model.reference import OMEGA_IE_DEG_H
 from recal.model.terms import Term, catalogue_terms
+from recal.solve import result_json
 from recal.solve.believable import unbelievable
-from recal.solve.consider import consider_covariance, prior_sigma, sensor_class
+from recal.solve.consider import consider_covariance
 from recal.solve.convergence import fixed_point, projected_start, swarm_convergence
+from recal.solve.earth_rate import (  # noqa: F401 - scale_noise_needed: re-exported
+    MIN_EARTH_RATE_CONTRAST,
+    _earth_rate_invisible,
+    scale_noise_needed,
+)
 from recal.solve.lm import covariance, solve_lm
 from recal.solve.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
 from recal.solve.observability import (
@@ -45,45 +50,41 @@ from recal.solve.observability import (
     ROTATION_REASON,
     ObservabilityReport,
     analyze,
-    jacobian,
 )
 from recal.solve.phases import paper_phases, whitened_phase
+from recal.solve.prior import HeldUncertainty, _gyro_prior_sigma, _prior_uncertainty, describe_prior
 from recal.solve.problem import Problem
-from recal.solve.start import DataPrior, data_prior, references
+from recal.solve.result_json import MC_KIND, MC_KIND_PAPER, UNITS  # noqa: F401 - re-exported, were defined here
+from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, were defined here
+    SLEW_EXCESS_SIGNIFICANCE,
+    SLEW_GYRO_BIAS_TYPICAL_DPH,
+    SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G,
+    SLEW_GYRO_MISALIGNMENT_TYPICAL,
+    SLEW_GYRO_SCALE_TYPICAL,
+    SLEW_PRIOR_SLEWS,
+    SlewExcess,
+    _information_shares,
+    _slews_see_earth_rate,
+    _turn_notes,
+    _usable_slews,
+    blind_gyro,
+    blind_gyro_models,
+    slew_excess,
+    slew_prior,
+)
+from recal.solve.start import data_prior, references
 from recal.solve.swarm import SwarmConfig
-from recal.solve.wander import WANDER_SIGNIFICANCE as WANDER_TEST
+from recal.solve.wander_fit import (  # noqa: F401 - WANDER_*: re-exported, were defined here
+    WANDER_MAX_RESIDUALS,
+    WANDER_MIN_SPAN_S,
+    WANDER_TEST,
+    _wander_note,
+    _with_wander,
+)
 
 METHODS = ("lm",) + SWARM_METHODS
 #: The steps :func:`calibrate` reports to its ``progress`` callback with LM (one call each).
 LM_STEPS = ("set-up", "observability", "fit", "fixed point", "uncertainty")
-UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
-         "rotation": "rad", "closure": "rad"}  # fmt: skip
-#: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
-#: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
-#: so the FOG's 0.05 deg/h would call every bias such a gyro's windows can give "not seen".
-SLEW_GYRO_BIAS_TYPICAL_DPH = 10.0 * OMEGA_IE_DEG_H
-#: Typical relative change of the scale factors of a gyro that cannot see Earth rate: a MEMS
-#: gyro's datasheet scale tolerance is 1-3 % (131 counts/(deg/s) +- 2 %, say).
-SLEW_GYRO_SCALE_TYPICAL = 1e-2
-#: Typical misalignment of such a gyro, rad: a MEMS datasheet's cross-axis sensitivity of 1-2 %
-#: (a FOG's 1 mrad would hold what the slews pin to a few mrad).
-SLEW_GYRO_MISALIGNMENT_TYPICAL = 1e-2
-#: Typical g-sensitivity of such a gyro, deg/h per g: MEMS datasheets give 0.01-0.1 deg/s/g
-#: (36-360 deg/h/g); a FOG's 0.01 deg/h/g would call what the windows show "not seen".
-SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G = 0.01 * 3600.0
-
-
-#: What the Monte Carlo spread means (the JSON's mc.kind): each run on perturbed data ...
-MC_KIND = (
-    "spread over the Monte Carlo runs, each run fitted to the data perturbed by its window noise "
-    "(antithetic pairs): the measurement uncertainty plus the solver's own scatter, a check on "
-    "'uncertainty' (the Gauss-Newton 1-sigma, which the product reports)"
-)
-#: ... or, in paper mode, every run on the same data
-MC_KIND_PAPER = (
-    "spread over the Monte Carlo runs on the same data: solver repeatability, not measurement "
-    "uncertainty (see 'uncertainty')"
-)
 
 
 @dataclass(frozen=True)
@@ -131,27 +132,6 @@ class CalibrationOptions:
     refuse_at_solution: bool = True
 
 
-class HeldUncertainty(NamedTuple):
-    """The prior's 1-sigma that the held coefficients carry into ``CalibrationResult.covariance``."""
-
-    sensor_class: str  # which defaults a data-derived prior used (recal.solve.consider)
-    source: dict[str, str]  # term name -> where its prior sigma came from
-    sigma: np.ndarray  # (D,) prior 1-sigma per parameter
-
-    def to_json_dict(self) -> dict[str, Any]:
-        return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
-
-    def bar(self, layout: ParameterLayout, typical: np.ndarray) -> np.ndarray:
-        """(D,) the observability bar (recal.solve.observability.analyze ``bar``): a prior
-        file's 1-sigma over the typical change where it is looser, else 1. Class defaults and a
-        data-derived start's own 1-sigma are guesses, not knowledge: they never lower it."""
-        out = np.ones(len(typical))
-        for name, sl in layout.term_slices().items():
-            if self.source.get(name, "").startswith("prior file"):
-                out[sl] = np.maximum(self.sigma[sl] / typical[sl], 1.0)
-        return out
-
-
 @dataclass
 class CalibrationResult:
     coefficients: CoefficientSet
@@ -189,132 +169,14 @@ class CalibrationResult:
         return {t.name: t for m in self.problem.models for t in m.terms}
 
     def residual_summary(self) -> dict[str, Any]:
-        before = self.problem.raw_residuals(self.theta_prior[None])
-        after = self.problem.raw_residuals(self.theta[None])
-        ind_before = self.problem.indicator(self.theta_prior[None])
-        ind_after = self.problem.indicator(self.theta[None])
-        out = {}
-        for n in self.problem.invariant_names:
-            noise = self.problem.noise_known_for(n)
-            out[n] = {
-                "unit": UNITS[n],
-                "reference": self.problem.reference(n),
-                "rms_before": float(np.sqrt(np.mean(before[n] ** 2))),
-                "rms_after": float(np.sqrt(np.mean(after[n] ** 2))),
-                "noise_floor": float(np.sqrt(np.mean(self.problem.sigma[n] ** 2)))
-                if noise
-                else None,
-                "noise_source": self.problem.sigma_source.get(n),
-                "indicator_eq14_before": float(ind_before[n][0]),
-                "indicator_eq14_after": float(ind_after[n][0]),
-                "per_position": [float(v) for v in after[n][0]],
-            }
-            if n in ("gyro_norm", "dot") and self.problem.gyro_rows is not None:
-                # accelerometer-only windows (gyro not still) are left out: name the rows
-                out[n]["rows"] = [int(i) for i in self.problem.gyro_rows]
-            if n == "rotation":
-                out[n]["per_rotation"] = out[n].pop("per_position")
-                out[n]["rotations"] = self.problem.n_of(n) // 3
-                if noise:
-                    w = after[n][0] / self.problem.sigma[n]
-                    out[n]["chi2_red"] = float(np.mean(w * w))
-            if n == "closure":
-                turns = self.problem.closed_turns
-                assert turns is not None
-                out[n]["per_turn"] = out[n].pop("per_position")
-                out[n]["slews"] = [int(i) for i in turns.index]
-                out[n]["turns"] = [int(k) for k in turns.turns]
-                out[n]["how"] = [
-                    c.how for i in turns.index for c in self.problem.turn_candidates if c.slew == i
-                ]
-                out[n]["closure_sigma_deg"] = [float(v) for v in np.degrees(turns.sigma_rad)]
-                if noise:
-                    w = after[n][0] / self.problem.sigma[n]
-                    out[n]["chi2_red"] = float(np.mean(w * w))
-            if n == "slew":
-                out[n]["per_slew"] = out[n].pop("per_position")
-                excess = float(self.problem.slew_excess_rad)
-                out[n]["unmodelled_excess_rad"] = excess
-                if noise and excess > 0:  # the floor above includes it: the windows' own too
-                    var = np.clip(self.problem.sigma[n] ** 2 - excess**2, 0, None)
-                    out[n]["window_noise_floor"] = float(np.sqrt(np.mean(var)))
-                out[n]["slews"] = self.problem.n_of(n) // 2
-                out[n]["earth_rate"] = (
-                    "removed with the first window's calibrated rest rate"
-                    if self.problem.slew_earth_rate
-                    else "left in, as noise (the gyro cannot see Earth rate)"
-                )
-                if noise:
-                    w = after[n][0] / self.problem.sigma[n]
-                    out[n]["chi2_red"] = float(np.mean(w * w))
-        return out
+        return result_json.residual_summary(self)
 
     def uncertainty_kind(self) -> str:
         """What the 1-sigma values mean, and which noise they come from."""
-        sources = ", ".join(sorted(set(self.problem.sigma_source.values())))
-        held = (
-            "; plus what the held coefficients' prior uncertainty moves them by (consider "
-            "covariance); a held coefficient's 1-sigma is its prior's"
-        )
-        if self.problem.noise_known:
-            return (
-                f"Gauss-Newton 1-sigma from the window noise ({sources}) propagated through the "
-                "invariants (scaled by max(1, chi2_red))" + held
-            )
-        if self.observability.redundancy == 0:
-            return "unknown: no noise columns and no redundancy to estimate the noise from"
-        return (
-            f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})"
-            + held
-        )
+        return result_json.uncertainty_kind(self)
 
     def to_json_dict(self) -> dict[str, Any]:
-        terms = self.terms
-        out: dict[str, Any] = {
-            "coefficients": self.coefficients.to_json_dict(terms),
-            "status": layout_like(self.status, str, terms),
-            "uncertainty": layout_like(
-                self.uncertainty, lambda v: None if not np.isfinite(v) else float(v), terms
-            ),
-            "uncertainty_kind": self.uncertainty_kind(),
-            "noise_source": dict(self.problem.sigma_source),
-            "observability": self.observability.to_json_dict(),
-            "residuals": self.residual_summary(),
-            "chi2_red": self.chi2_red if np.isfinite(self.chi2_red) else None,
-            "method": self.method,
-            "sensor": "both" if len(self.problem.sensors) == 2 else self.problem.sensors[0],
-            "positions": self.problem.M,
-            "latitude_deg": self.problem.latitude_deg,
-            "height_m": self.problem.height_m,
-            "gravity_g": self.problem.gravity_g,
-            "earth_rate_deg_h": OMEGA_IE_DEG_H,
-            "prior": self.prior_source,
-            "evaluations": self.evaluations,
-            "wall_time_s": self.wall_time_s,
-            "notes": self.notes,
-        }
-        if self.noise_model:
-            out["noise_model"] = dict(self.noise_model)
-        if self.problem.turn_candidates:
-            out["turn_closure"] = {
-                "declared_sigma_deg": self.turn_closure_declared_deg or None,
-                "candidates": [c.to_json_dict() for c in self.problem.turn_candidates],
-            }
-        if self.convergence:
-            out["converged"] = bool(self.convergence.get("converged"))
-            out["convergence"] = dict(self.convergence)
-        if self.held_uncertainty is not None:
-            out["held_uncertainty"] = self.held_uncertainty.to_json_dict()
-        if self.mcs is not None:
-            split = CoefficientSet.from_vector
-            out["mc"] = {
-                "runs": int(self.mcs.runs.shape[0]),
-                "cycles": self.mcs.cycles,
-                "mean": split(self.layout, self.mcs.mean).to_json_dict(terms),
-                "std": split(self.layout, self.mcs.std).to_json_dict(terms),
-                "kind": MC_KIND_PAPER if self.method.endswith("(paper mode)") else MC_KIND,
-            }
-        return out
+        return result_json.result_json(self)
 
 
 def build_models(
@@ -343,111 +205,6 @@ def _plugin_metadata(layout: ParameterLayout) -> dict[str, Any]:
     files = {t.name: plugin_file(t) for t in layout.term_of()}
     files = {n: f for n, f in files.items() if f is not None}
     return {"plugins": files} if files else {}
-
-
-def describe_prior(
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    how: dict[str, str],
-    given: CoefficientSet | None = None,
-    gyro_from_slews: bool = False,
-) -> str:
-    """What the prior ``theta0`` is, true to its values: the given file and the terms it lacks
-    (taken from the data), how each triad's scale and bias were derived from the data (``how``,
-    :class:`recal.solve.start.DataPrior`: an ellipsoid fit, or a common scale from the median
-    norm when the positions cannot support one; the slews for a gyro blind to Earth rate), and
-    which other terms start at zero."""
-    slices = layout.term_slices()
-    from_data = [t for m in layout.models for t in m.terms
-                 if given is None or given.values.get(t.name) is None]  # fmt: skip
-    parts = []
-    for m in layout.models:
-        if not any(t.name in (f"{m.sensor}.scale", f"{m.sensor}.bias") for t in from_data):
-            continue
-        if m.sensor == "gyro" and gyro_from_slews:
-            parts.append("gyro: common scale from the slews, bias the mean window output")
-        else:
-            parts.append(f"{m.sensor}: {how[m.sensor]}")
-    zero = [t.name for t in from_data if t.group not in ("scale", "bias")
-            and np.all(theta0[slices[t.name]] == np.asarray(t.neutral, float))]  # fmt: skip
-    if zero:
-        parts.append(f"{', '.join(zero)} zero")
-    other = [t.name for t in from_data if t.group not in ("scale", "bias") and t.name not in zero]
-    if other:
-        parts.append(f"{', '.join(other)} from the data")
-    if given is None:
-        return f"data-derived ({'; '.join(parts)})"
-    source = str(given.metadata.get("source", "given prior"))
-    return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
-
-
-#: Position-to-position spread of the gyro outputs, in window-noise units, below which Earth
-#: rate is not visible (a navigation FOG shows thousands, a KVH-class FOG hundreds; the MEMS
-#: recording in ../shared shows 25, from bias instability, not Earth rate).
-MIN_EARTH_RATE_CONTRAST = 50.0
-
-
-def scale_noise_needed(n_positions: int, relative: float = 1e-3) -> float:
-    """Window-mean gyro noise, deg/h, that pins each scale factor to ``relative`` from
-    ``n_positions`` random orientations.
-
-    d|w|/d(ln K_i) = -Omega u_i^2; for uniform directions the information matrix
-    (Omega / sigma)^2 sum u_i^2 u_j^2 has an inverse diagonal of 6 / M, so
-    sd(ln K_i) ~ sigma / Omega * sqrt(6 / M). Estimating bias and misalignment alongside costs
-    about a factor 2 (checked against :func:`recal.solve.observability.analyze`), hence sqrt(M / 24).
-    """
-    return relative * OMEGA_IE_DEG_H * np.sqrt(n_positions / 24.0)
-
-
-def _earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None) -> str | None:
-    """Why Earth rate cannot calibrate this gyro, or None: the outputs must change with
-    orientation well beyond the window-mean noise.
-
-    The reason names the cause -- the contrast, the noise and the hold length -- and what would
-    be needed: the noise of a window mean falls as 1/sqrt(hold) (white noise), so the contrast
-    grows as sqrt(hold). ``scale`` (output units per deg/h, e.g. from the prior) expresses the
-    noise in deg/h and gives the hold that pins the scale factors to their typical change;
-    without it the noise stays in output units.
-    """
-    seen = positions.gyro_contrast()
-    if seen is None:
-        return None
-    contrast, axis = seen
-    sem = np.maximum(np.median(positions.std_of_mean("gyro"), axis=0), 1e-300)
-    if contrast >= MIN_EARTH_RATE_CONTRAST:
-        return None
-    gain = 1.0 if scale is None else abs(float(np.asarray(scale, float)[axis]))
-    unit = "output units" if scale is None else "deg/h"
-    noise_in = sem[axis] / gain
-    cols = positions.columns
-    hold = (
-        float(np.median(cols["end_s"] - cols["start_s"]))
-        if "start_s" in cols and "end_s" in cols
-        else None
-    )
-
-    def holds_for(factor: float) -> str:  # white noise: sigma ~ 1/sqrt(hold)
-        return (
-            f"holds about {factor:.3g}x longer"
-            if hold is None
-            else f"holds of about {hold * factor:.3g} s"
-        )
-
-    M = len(positions)
-    pinned = scale_noise_needed(M)
-    visible = holds_for((MIN_EARTH_RATE_CONTRAST / contrast) ** 2)
-    then = f"pinning the scale factors to 1000 ppm from {M} positions then needs a window-mean noise of about {pinned:.2g} deg/h"
-    if scale is not None:
-        then += f" ({holds_for((noise_in / pinned) ** 2)})"
-    caveat = (
-        " if the noise averages down" if positions.noise_source("gyro") == "sem columns" else ""
-    )
-    return (
-        f"gyro outputs differ between positions by only {contrast:.3g}x the window-mean noise "
-        f"({noise_in:.3g} {unit}" + ("" if hold is None else f" from {hold:.3g} s holds") + "): "
-        f"Earth rate ({OMEGA_IE_DEG_H:.5f} deg/h) is not visible; it needs "
-        f"{MIN_EARTH_RATE_CONTRAST:.0f}x: {visible} at this noise{caveat}; {then}"
-    )
 
 
 def _resolve_sensors(positions: Positions, sensor: str | None) -> tuple[str, ...]:
@@ -536,114 +293,6 @@ def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[
     return notes
 
 
-def _usable_slews(positions: Positions, opt: CalibrationOptions, notes: list[str]) -> Slews | None:
-    """The slews of ``opt`` when they belong to these positions, else None (with a note)."""
-    slews = opt.slews
-    if slews is None:
-        return None
-    if slews.n_dropped:
-        reasons = ", ".join(f"{k} {v}" for k, v in slews.dropped.items() if v)
-        notes.append(
-            f"{slews.n_dropped} slew(s) dropped: they cannot be integrated ({reasons}); their "
-            "windows still serve as positions"
-        )
-    cols = positions.columns
-    why = (
-        "the positions have no start_s/end_s columns"
-        if "start_s" not in cols or "end_s" not in cols
-        else slews.mismatch(cols["start_s"], cols["end_s"])
-    )
-    if why:
-        notes.append(f"slews not used: {why}")
-        return None
-    return slews if len(slews) else None
-
-
-#: The common-scale search of :func:`slew_prior` uses at most this many slews, evenly spread
-#: (it tries 600 scale factors: on every slew of a long voyage that alone took seconds).
-SLEW_PRIOR_SLEWS = 256
-
-
-def slew_prior(problem: Problem, theta0: np.ndarray) -> np.ndarray:
-    """A gyro prior from the slews for a gyro that cannot see Earth rate: a common scale factor
-    by a batched search on the slew residuals (a coarse log grid over a decade either side of
-    the ratio of raw integrated output to the gravity-direction change, both signs, then a fine
-    one; on at most :data:`SLEW_PRIOR_SLEWS` slews), the bias the mean window output over that
-    scale, misalignment zero."""
-    assert problem.slews is not None and problem.slew_basis is not None
-    if len(problem.slews) > SLEW_PRIOR_SLEWS:
-        keep = np.unique(
-            np.linspace(0, len(problem.slews) - 1, SLEW_PRIOR_SLEWS).round().astype(int)
-        )
-        problem = replace(problem, slews=problem.slews.subset(keep),
-                          slew_basis=problem.slew_basis[keep], known_rotations=None,
-                          closed_turns=None)  # fmt: skip
-    slews = problem.slews
-    assert slews is not None
-    sl = problem.layout.term_slices()
-    theta = np.array(theta0, float)
-    theta[sl["gyro.misalignment"]] = 0.0
-    n0 = problem.positions.gyro.mean(axis=0)  # zero-rate output: Earth rate is below the noise
-    f = problem.physical(theta[None])["accel"][0]
-    u = f / np.linalg.norm(f, axis=1, keepdims=True)
-    seen = np.arccos(np.clip(np.sum(u[slews.first] * u[slews.second], axis=1), -1, 1))
-    raw = np.linalg.norm(slews.sums.sum(axis=1), axis=1)  # output units x s
-    big = seen > 0.2
-    ratio = raw[big] * DEG_H_TO_RAD_S / seen[big] if big.any() else raw * DEG_H_TO_RAD_S
-    centre = float(np.median(ratio)) if ratio.size and np.median(ratio) > 0 else 1.0
-
-    def best(scales: np.ndarray) -> float:
-        cand = np.repeat(theta[None], scales.size, axis=0)
-        cand[:, sl["gyro.scale"]] = scales[:, None]
-        cand[:, sl["gyro.bias"]] = n0[None] / scales[:, None]
-        r = problem.raw_residuals(cand)["slew"]
-        cost = np.where(np.isfinite(r).all(axis=1), np.sum(r * r, axis=1), np.inf)
-        return float(scales[int(np.argmin(cost))])
-
-    coarse = centre * np.exp(np.linspace(-np.log(10.0), np.log(10.0), 241))
-    k = best(np.concatenate([coarse, -coarse]))
-    k = best(k * np.exp(np.linspace(-0.03, 0.03, 121)))
-    theta[sl["gyro.scale"]] = k
-    theta[sl["gyro.bias"]] = n0 / k
-    return theta
-
-
-def blind_gyro_models(
-    models: tuple[Model, ...], layout: ParameterLayout, theta: np.ndarray
-) -> tuple[Model, ...]:
-    """The models with the gyro's typical changes set for a gyro blind to Earth rate (a MEMS
-    gyro calibrated from slews): the scale's at least :data:`SLEW_GYRO_SCALE_TYPICAL` (its
-    datasheet tolerance: a scale the data pin to 0.5 % is worth estimating although a FOG's
-    1000 ppm would call it unseen), the bias's max(10 x Earth rate, the scale's typical relative
-    change x |b|). The second term because such a gyro's zero-rate output is large against
-    Earth rate: a relative scale change moves the input-referred bias b by as much of it, and
-    the two must be judged on one footing. The misalignment and a g-sensitivity in the model
-    get a MEMS's typical sizes too (:data:`SLEW_GYRO_MISALIGNMENT_TYPICAL`,
-    :data:`SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G`)."""
-    sl = layout.term_slices()
-    scale = next(t for m in models for t in m.terms if t.name == "gyro.scale")
-    rel = np.maximum(np.asarray(scale.typical, float), SLEW_GYRO_SCALE_TYPICAL)
-    typ = np.maximum(SLEW_GYRO_BIAS_TYPICAL_DPH, rel * np.abs(theta[sl["gyro.bias"]]))
-    mis = next(t for m in models for t in m.terms if t.name == "gyro.misalignment")
-    new = {"gyro.bias": typ, "gyro.scale": rel,
-           "gyro.misalignment": np.maximum(mis.typical, SLEW_GYRO_MISALIGNMENT_TYPICAL)}  # fmt: skip
-    if "gyro.g_sensitivity" in sl:
-        g = next(t for m in models for t in m.terms if t.name == "gyro.g_sensitivity")
-        new["gyro.g_sensitivity"] = np.maximum(g.typical, SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G)
-    return tuple(
-        Model(m.sensor, tuple(
-            replace(t, typical=tuple(float(v) for v in new[t.name])) if t.name in new else t
-            for t in m.terms))
-        for m in models
-    )  # fmt: skip
-
-
-def blind_gyro(models: Sequence[Model]) -> bool:
-    """Whether these models were sized for a gyro blind to Earth rate (:func:`blind_gyro_models`)."""
-    bias = next((t for m in models for t in m.terms if t.name == "gyro.bias"), None)
-    return bias is not None and min(bias.typical) >= SLEW_GYRO_BIAS_TYPICAL_DPH
-
-
 class _SetUp(NamedTuple):
     """What a calibration starts from (shared by :func:`calibrate` and :func:`check_design`)."""
 
@@ -657,121 +306,6 @@ class _SetUp(NamedTuple):
     held: HeldUncertainty  # the prior's 1-sigma
     #: the observability at the prior and an LM fit on it, when set-up already made them
     first: tuple[ObservabilityReport, np.ndarray] | None
-
-
-def _slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: float) -> bool:
-    """Whether Earth's turn over a slew is better taken out with the calibrated rest rate of its
-    first window than left in the slew's noise budget: the window-mean gyro noise (deg/h, at the
-    prior scale ``scale`` output/(deg/h), else the output noise over the median output norm in
-    units of Earth rate) against the horizontal Earth rate it would remove (variances per
-    component: sem^2 against (Omega cos(lat))^2 / 2, :func:`recal.detect.slews.slew_sigma`). Decided
-    by the two error budgets, not by a contrast threshold; without noise columns the rest rate
-    is used (a gyro without noise columns is judged on its residuals later)."""
-    noise = positions.std_of_mean("gyro")
-    if noise is None:
-        return True
-    sem = np.median(noise, axis=0)
-    if scale is not None:
-        sem_dph = sem / np.maximum(np.abs(np.asarray(scale, float)), 1e-300)
-    else:  # output units: the prior's common scale is the median norm over Earth rate
-        gain = np.median(np.linalg.norm(positions.gyro, axis=1)) / OMEGA_IE_DEG_H
-        sem_dph = sem / max(gain, 1e-300)
-    horizontal = OMEGA_IE_DEG_H * np.cos(np.radians(lat))
-    return bool(np.mean(sem_dph**2) < horizontal**2 / 2.0)
-
-
-#: Slews whose reduced chi2 exceeds 1 by this many of its standard errors (sqrt(2 / n)) carry an
-#: unmodelled per-slew error, estimated from their misfit (:func:`slew_excess`).
-SLEW_EXCESS_SIGNIFICANCE = 3.0
-
-
-class SlewExcess(NamedTuple):
-    """:func:`slew_excess`: the excess and the slews' chi2_red before it; without an excess the
-    observability at the prior and the LM fit on it, which calibrate then reuses."""
-
-    excess: float
-    chi2_first: float
-    report: ObservabilityReport | None = None
-    theta: np.ndarray | None = None
-
-
-def slew_excess(
-    problem: Problem,
-    theta0: np.ndarray,
-    typical: np.ndarray,
-    weights: np.ndarray | None = None,
-    bar: np.ndarray | None = None,
-) -> SlewExcess:
-    """(excess, chi2_red of the slews before it): the unmodelled error per slew residual, rad,
-    that makes the slews' chi2_red 1 at the fit, by the method of moments, iterated with the fit
-    (3 rounds at most), or 0 when the slews fit to their window noise within
-    :data:`SLEW_EXCESS_SIGNIFICANCE` standard errors. ``weights``, ``bar``: as for
-    :func:`recal.solve.observability.analyze`.
-
-    Why: on a real hand-turned MEMS session (imucal's Ferraris example) the face flips misfit by
-    3-30 mrad against a noise floor of 0.3 mrad whatever the linear gyro model, while the closed
-    turns fit; weighted by the window noise alone the flips would decide the scale factors and
-    outweigh the turns 10:1. The excess gives each slew the weight its scatter allows."""
-    if problem.slews is None or not problem.noise_known_for("slew"):
-        return SlewExcess(0.0, float("nan"))
-    n = problem.n_of("slew")
-    base = problem.sigma["slew"]
-    theta, excess, chi2_first = theta0, 0.0, float("nan")
-    prob = problem
-    # the directions the window noise lets the slews see, kept through the rounds (judged
-    # again on the inflated noise, fewer are seen, the misfit grows and the excess runs away)
-    report = analyze(prob, theta0, typical, weights=weights, bar=bar)
-    T = typical[:, None] * report.basis
-    for _ in range(4):
-        lm = solve_lm(prob, theta0, T)
-        theta = lm.theta
-        r = prob.raw_residuals(theta[None])["slew"][0]
-        chi2 = float(np.mean((r / np.sqrt(base**2 + excess**2)) ** 2))
-        if np.isnan(chi2_first):
-            chi2_first = chi2
-            if chi2 < 1.0 + SLEW_EXCESS_SIGNIFICANCE * np.sqrt(2.0 / n):
-                return SlewExcess(0.0, chi2_first, report, theta)
-        new = float(np.sqrt(max(np.mean(r**2 - base**2), 0.0)))
-        if abs(new - excess) <= 0.1 * max(new, 1e-300):
-            excess = new
-            break
-        excess = new
-        prob = replace(prob, slew_excess_rad=excess).at(theta0)
-    return SlewExcess(excess, chi2_first)
-
-
-def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
-    """What the static windows (gyro norm, dot product: Earth rate) and the motion (slews,
-    closed turns, known rotations) each tell about the gyro scale factors: their 1-sigma, ppm,
-    from each alone and together (Fisher information at ``theta``, every other coefficient
-    estimated alongside), or None without slews."""
-    sl = problem.layout.term_slices().get("gyro.scale")
-    if sl is None or problem.slews is None:
-        return None
-    J = jacobian(problem, theta, np.diag(typical))  # (R, D), typical-scaled
-    rows, start = {}, 0
-    for n in problem.invariant_names:
-        rows[n] = np.arange(start, start + problem.n_of(n))
-        start += problem.n_of(n)
-    empty = np.zeros(0, dtype=int)
-    static = np.concatenate([rows.get(n, empty) for n in ("gyro_norm", "accel_norm", "dot")])
-    motion = np.concatenate([rows.get(n, empty) for n in ("accel_norm", "slew", "closure",
-                                                           "rotation")])  # fmt: skip
-    idx = np.arange(problem.layout.size)[sl]
-    rel = typical[idx] / np.maximum(np.abs(theta[idx]), 1e-300)  # typical -> relative
-
-    def sd_ppm(r: np.ndarray) -> str:
-        # a weak prior (100 typical changes) keeps unseen directions finite and makes adding
-        # rows never raise a 1-sigma
-        cov = np.linalg.inv(J[r].T @ J[r] + 1e-4 * np.eye(J.shape[1]))
-        sd = np.sqrt(np.clip(np.diag(cov)[idx], 0, None))
-        return "/".join("not seen" if v > 10 else f"{v * w * 1e6:.3g}" for v, w in zip(sd, rel))
-
-    return (
-        "gyro scale 1-sigma (x/y/z, ppm, window noise only) from Earth rate in the still "
-        f"windows alone: {sd_ppm(static)}; from the slews alone: {sd_ppm(motion)}; together: "
-        f"{sd_ppm(np.arange(J.shape[0]))} (one fit, each weighted by its own noise)"
-    )
 
 
 def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
@@ -905,165 +439,6 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     prior_source = describe_prior(layout, theta0, start.how, opt.prior,
                                   gyro_from_slews=blind and opt.prior is None)  # fmt: skip
     return _SetUp(sensors, notes, layout, theta0, prior_source, problem, typical, held, first)
-
-
-def _gyro_prior_sigma(
-    positions: Positions,
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    opt: CalibrationOptions,
-    start: DataPrior,
-) -> dict[str, np.ndarray]:
-    """The gyro's prior 1-sigma (bias deg/h, scale in its units) as the held coefficients get it
-    (:func:`_prior_uncertainty`), for the Earth-rate heading check of closed turns."""
-    own = start.sigma if opt.prior is None and start.sigma.shape == theta0.shape else None
-    held = _prior_uncertainty(positions, layout, theta0, layout.typical(theta0), opt, own)
-    sl = layout.term_slices()
-    return {n: held.sigma[sl[n]] for n in ("gyro.bias", "gyro.scale")}
-
-
-def _turn_notes(problem: Problem) -> list[str]:
-    """One note per slew that integrates close to whole turns about the vertical: closed
-    (checked by Earth rate, with the headings, or declared) or not, and why."""
-    notes = []
-    for c in problem.turn_candidates:
-        head = (
-            f"slew {c.slew} (windows {c.first}-{c.second}) turns {c.integrated_deg:+.1f} deg "
-            f"about the vertical and gravity returns: "
-        )
-        if c.how == CHECKED:
-            notes.append(
-                head + f"a closed turn ({c.turns:+d} x 360 deg), checked by Earth rate: headings "
-                f"{c.heading_first_deg:.2f} and {c.heading_second_deg:.2f} deg, change "
-                f"{c.heading_change_deg:+.3f} +- {c.sigma_deg:.3g} deg (the closure's 1-sigma)"
-            )
-        elif c.closed:
-            notes.append(head + f"a closed turn ({c.turns:+d} x 360 deg), {c.reason}")
-        else:
-            notes.append(head + f"not taken as a closed turn: {c.reason}")
-    return notes
-
-
-def _prior_uncertainty(
-    positions: Positions,
-    layout: ParameterLayout,
-    theta0: np.ndarray,
-    typical: np.ndarray,
-    opt: CalibrationOptions,
-    start_sigma: np.ndarray | None = None,
-) -> HeldUncertainty:
-    """The prior's 1-sigma per parameter (recal.solve.consider.prior_sigma) and where it came from."""
-    cls = sensor_class(positions, layout, theta0, MIN_EARTH_RATE_CONTRAST)
-    given = opt.prior.uncertainty if opt.prior else None
-    sigma, source = prior_sigma(layout, theta0, typical, given, cls, start_sigma)
-    return HeldUncertainty(cls, source, sigma)
-
-
-#: "auto" looks for bias wander only where the windows span at least this long, s: over a
-#: session of minutes an excess misfit is model error (a warming MEMS drifts, a hand-turned
-#: unit flexes), which wander would only hide (imucal's Ferraris session: an accel "wander" of
-#: 0.24 counts that tripled the bias sigma).
-WANDER_MIN_SPAN_S = 3600.0
-#: ... and up to this many window residuals (the whitening is dense: R^2 memory, R^3 time).
-WANDER_MAX_RESIDUALS = 1500
-
-
-def _with_wander(
-    problem: Problem,
-    theta: np.ndarray,
-    theta0: np.ndarray,
-    typical: np.ndarray,
-    report: ObservabilityReport,
-    opt: CalibrationOptions,
-) -> tuple[Problem, np.ndarray, dict[str, Any], int]:
-    """The fit again with the windows' bias wander in their covariance (recal.solve.wander):
-    ``opt.wander`` "auto" estimates it from this fit's residuals (kept only when significant),
-    a WanderModel is taken as given. Returns the problem, the estimate, the JSON noise model
-    and the evaluations spent."""
-    from recal.solve.wander import (
-        TAU_GRID_S,
-        WanderModel,
-        estimate_wander,
-        window_sessions,
-        window_times,
-    )
-
-    windows = problem.window_invariants
-    t = window_times(problem.positions.columns, problem.M)
-    out: dict[str, Any] = {
-        "windows": "their own standard errors (sem or std columns)",
-        "times": "start_s/end_s" if t is not None else None,
-    }
-    if isinstance(opt.wander, WanderModel):
-        model = opt.wander
-    elif opt.wander == "auto":
-        sessions = window_sessions(problem.positions.columns, problem.M)
-        span = 0.0 if t is None else _longest_session_span(t, sessions)
-        if span < WANDER_MIN_SPAN_S or problem.window_sigma().size > WANDER_MAX_RESIDUALS:
-            out["wander"] = None
-            out["wander_test"] = (
-                f"not estimated: the windows span {span / 3600:.2g} h (wander between windows "
-                f"is looked for over {WANDER_MIN_SPAN_S / 3600:g} h or more; over a shorter "
-                "session an excess is model error, recal diagnose)"
-                if span < WANDER_MIN_SPAN_S
-                else f"not estimated: more than {WANDER_MAX_RESIDUALS} window residuals"
-            )
-            return problem, theta, out, 0
-        raw = problem.raw_residuals(theta[None])
-        sigma_w = problem.window_sigma()
-        r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
-        T = typical[:, None] * report.basis
-        J = jacobian(problem, theta, T.T)[: len(r_std)]
-        taus = [tau for tau in TAU_GRID_S if tau <= 2.0 * span]  # slower is a bias over the span
-        model, fits = estimate_wander(
-            r_std, sigma_w, problem.wander_sensitivity(theta), t, taus=taus, jacobian=J,
-            sessions=sessions,
-        )  # fmt: skip
-        out["wander_test"] = [
-            {"sensor": f.sensor, "gain_2lnL": round(float(f.gain), 3), "threshold": WANDER_TEST,
-             "significant": bool(f.significant), "sigma": float(f.sigma),
-             "tau_s": float(f.tau_s), "sigma_ml": float(f.sigma_ml), "tau_ml_s": float(f.tau_ml_s),
-             "sigma_carried": float(f.sigma_carried), "sigma_upper": float(f.sigma_upper),
-             **({} if f.joint_gain is None else {"joint_gain_2lnL": round(float(f.joint_gain), 3)})}
-            for f in fits
-        ]  # fmt: skip
-    else:
-        raise RecalInputError(f"wander must be None, 'auto' or a WanderModel, not {opt.wander!r}")
-    if model.empty:
-        out["wander"] = None
-        return problem, theta, out, 0
-    problem = problem.with_wander(model, theta)
-    out["wander"] = model.to_json_dict()
-    if opt.method == "lm" or opt.polish:
-        fixed = fixed_point(problem, theta, theta0, typical, report.basis)
-        return fixed.problem, fixed.theta, out, fixed.evaluations
-    lm = solve_lm(problem, theta, typical[:, None] * report.basis)
-    out["note"] = "the swarm's answer refined by LM on the covariance with the wander"
-    return problem, lm.theta, out, lm.evaluations
-
-
-def _longest_session_span(t: np.ndarray, sessions: np.ndarray | None) -> float:
-    """The longest time the windows of one session span, s (sessions restart the clock)."""
-    if sessions is None:
-        return float(np.ptp(t))
-    return max(float(np.ptp(t[sessions == k])) for k in np.unique(sessions))
-
-
-def _wander_note(wander: dict[str, Any]) -> str:
-    parts = []
-    for s in ("gyro", "accel"):
-        if s in wander:
-            sig = max(wander[s]["sigma"])
-            tau = max((v for v in wander[s]["tau_s"] if v is not None), default=None)
-            parts.append(
-                f"{s} {sig:.3g} (output units)"
-                + ("" if tau is None else f", correlation time {tau / 3600:.3g} h")
-            )
-    return (
-        "the windows share a bias wander ("
-        + "; ".join(parts)
-        + f", {wander.get('source', 'given')}): the fit and its 1-sigma carry it (noise_model)"
-    )
 
 
 def check_design(

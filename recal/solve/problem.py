@@ -106,7 +106,7 @@ class Problem:
         turn_candidates: every slew that integrates close to whole turns about the vertical,
             with what was decided and why (:class:`recal.detect.slews.TurnCandidate`).
         slew_excess_rad: an unmodelled error per slew residual added in quadrature to its sigma
-            (estimated from the slews' misfit by :func:`recal.solve.calibrate.slew_excess`), rad.
+            (estimated from the slews' misfit by :func:`recal.solve.slew_fit.slew_excess`), rad.
         wander, wander_cov: the triads' bias wander between windows and the covariance it adds
             to the window residuals (:meth:`with_wander`); :meth:`residuals` whitens by it.
     """

@@ -4,16 +4,41 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from drivers.record import RecordProgress
 
-#: drivers.transport.DEFAULT_BAUD and the built-in frame formats, repeated here so that building
-#: the parser imports no drivers (a test checks they match; --format is checked against the
-#: registry when the command runs).
+#: drivers.transport.DEFAULT_BAUD, repeated here so that building the parser imports no drivers
+#: (a test checks they match).
 DEFAULT_BAUD = 921600
-FORMATS = ("kvh-a", "kvh-b", "kvh-c", "kvh-bit")
+
+
+class _RegisteredFrameFormats:
+    """The frame formats registered in drivers.formats (the formats drivers.record decodes to
+    count frames), looked up each time they are used, not when the parser is built: building
+    it imports no drivers, and ``--format`` and its help follow the registry (a plug-in's
+    format too) instead of a list written here."""
+
+    @staticmethod
+    def names() -> list[str]:
+        from drivers.formats import format_names
+
+        return format_names()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.names()
+
+    def __repr__(self) -> str:
+        return f"<frame formats of drivers.formats: {', '.join(self.names())}>"
+
+
+#: The --format choices: the registered frame formats (see :class:`_RegisteredFrameFormats`).
+FORMATS = _RegisteredFrameFormats()
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -33,8 +58,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--format",
         default="kvh-a",
-        metavar="{" + ",".join(FORMATS) + "}",
-        help="frame format, used to count frames and check the capture (default kvh-a)",
+        choices=FORMATS,
+        metavar="FORMAT",  # the choices are looked up when used, not to build the parser
+        help="frame format, used to count frames and check the capture: one of %(choices)s "
+        "(default %(default)s)",
     )
     p.set_defaults(func=run)
     return p

@@ -1,0 +1,199 @@
+"""The result of diagnose: :class:`Diagnosis`, its model ladder (:func:`_rung`), its verdict
+(:func:`_conclude`) and the variables its final residual correlates with."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from recal.diagnose.candidates import ALPHA, Candidate
+from recal.diagnose.fit import INDEXING, Fit, _finite, heldout_chi2_red, worst_windows
+from recal.model.plugins import site_context, values_by_term
+from recal.solve.calibrate import CalibrationResult
+
+
+@dataclass
+class Diagnosis:
+    baseline: CalibrationResult
+    invariants: list[dict[str, Any]]
+    candidates: list[Candidate]
+    suggested_effects: list[str]
+    baseline_effects: list[str]
+    chi2_red: float  # baseline model
+    final_chi2_red: float  # with the suggested effects added
+    final_residuals: dict[str, np.ndarray]  # invariant -> per-position residual, suggested model
+    verdict: str = ""
+    model_fails: bool = False
+    #: the model ladder: baseline, then each suggested effect added in turn
+    ladder: list[dict[str, Any]] = field(default_factory=list)
+    #: variable -> correlation with the final whitened residual (|r| largest first)
+    residual_correlations: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    #: largest misfit with the suggested effects (:func:`worst_windows`), 0-based rows
+    worst_positions: list[int] = field(default_factory=list)
+    worst_slews: list[dict[str, int]] = field(default_factory=list)
+    #: False when the suggested effects move a seed coefficient by more than CORE_SHIFT_SIGMA
+    #: of its baseline 1-sigma: their coefficients are not better than the baseline's until
+    #: checked (``warning`` says how)
+    trustworthy: bool = True
+    warning: str = ""
+    #: seed coefficient -> shift from the baseline to the suggested model, baseline 1-sigma
+    core_shift: dict[str, float] = field(default_factory=dict)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "verdict": self.verdict,
+            "model_fails": self.model_fails,
+            "trustworthy": self.trustworthy,
+            "warning": self.warning,
+            "core_shift": self.core_shift,
+            "worst_positions": self.worst_positions,
+            "worst_slews": self.worst_slews,
+            "indexing": INDEXING,
+            "ladder": self.ladder,
+            "residual_correlations": self.residual_correlations,
+            "notes": self.notes,
+            "invariants": self.invariants,
+            "candidates": [c.to_json_dict() for c in self.candidates],
+            "suggested_effects": self.suggested_effects,
+            "baseline_effects": self.baseline_effects,
+            "chi2_red": _finite(self.chi2_red),
+            "chi2_red_with_suggested": _finite(self.final_chi2_red),
+            "noise_known": self.baseline.problem.noise_known,
+            "noise_model": self.baseline.noise_model or None,
+            "method": "LM fits with the baseline's residual weights; F-test and BIC per "
+            "candidate; confounding from the correlation of fitted signatures",
+            "alpha": ALPHA,
+        }
+
+
+def _rung(label: str, effect: str, fit: Fit, previous: Fit | None, n: int) -> dict[str, Any]:
+    """One step of the model ladder: chi2 ratio per invariant (RMS / noise floor) and the
+    change of BIC from the step before."""
+    raw = fit.problem.raw_residuals(fit.theta[None])
+    ratio = {}
+    for k, v in raw.items():
+        if fit.problem.noise_known_for(k):
+            floor = float(np.sqrt(np.mean(fit.problem.sigma[k] ** 2)))
+            ratio[k] = float(np.sqrt(np.mean(v[0] ** 2)) / floor)
+    bic = fit.rss + fit.rank * np.log(n)
+    step = None if previous is None else bic - (previous.rss + previous.rank * np.log(n))
+    return {
+        "model": label,
+        "effect": effect,
+        # no redundancy: the residual is zero by construction, so neither figure means anything
+        "chi2_red": _finite(fit.rss / (n - fit.rank)) if n > fit.rank else None,
+        "rms_over_floor": ratio,
+        "delta_bic": None if step is None else _finite(step),
+        "heldout_chi2_red": _finite(heldout_chi2_red(fit)) if n > fit.rank else None,
+        "directions": fit.rank,
+    }
+
+
+def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
+    """The verdict: fits to the floor, or the model still fails (and where, and with what)."""
+    dof = max(n - final.rank, 1)
+    d.residual_correlations = _residual_correlations(final, d.baseline)
+    d.worst_positions, d.worst_slews = worst_windows(final)
+    added = ", ".join(d.suggested_effects)
+    if n <= final.rank:  # the fit zeroes every residual: "at the floor" would say nothing
+        d.verdict = (
+            f"exactly determined: {n} invariant equations for {final.rank} observable "
+            "directions, so the residual is zero whatever the model and cannot show whether an "
+            "effect is missing; add positions (or orientations) to check the model"
+        )
+        if not d.suggested_effects:  # chi2_red of a fit with no redundancy is undefined
+            d.chi2_red = d.final_chi2_red = float("nan")
+        return
+    if not final.problem.noise_known:
+        d.verdict = (
+            f"suggested: {added} (chi2_red {d.chi2_red:.3g} -> {d.final_chi2_red:.3g})"
+            if added
+            else "no candidate effect is significant"
+        ) + "; the window noise is unknown, so whether the residual reaches the floor is unknown"
+        d.verdict += f"; {d.warning}" if d.warning else ""
+        return
+    p_fit = float(stats.chi2.sf(final.rss, dof))
+    d.model_fails = p_fit < ALPHA
+    traded = [c.effect for c in d.candidates if c.effect in d.suggested_effects and c.warning]
+    caveat = (
+        f"; but {', '.join(traded)} trades off with the seed coefficients (see the warning): "
+        "the residual may fall for the wrong reason"
+        if traded
+        else ""
+    ) + (f"; {d.warning}" if d.warning else "")
+    wander = (d.baseline.noise_model or {}).get("wander")
+    if not d.model_fails:
+        d.verdict = (
+            f"with {added} the residual is at the noise floor (chi2_red {d.chi2_red:.3g} -> "
+            f"{d.final_chi2_red:.3g})"
+            if added
+            else (
+                "the misfit is bias wander between the windows ("
+                + _wander_summary(wander)
+                + f"), not a missing effect: with it the model fits to the noise floor "
+                f"(chi2_red {d.chi2_red:.3g})"
+                if wander
+                else f"the model fits to the noise floor (chi2_red {d.chi2_red:.3g}); no effect "
+                "missing"
+            )
+        ) + caveat
+        return
+    per = ", ".join(map(str, d.worst_positions))
+    if d.worst_slews:
+        per += "; worst slews " + ", ".join(
+            f"{s['slew']} (rows {s['from_row']}->{s['to_row']})" for s in d.worst_slews
+        )
+    corr = ", ".join(f"{k} (r = {v:+.2f})" for k, v in list(d.residual_correlations.items())[:3])
+    model = f"with {added}" if added else "with the seed model"
+    d.verdict = (
+        f"the model still fails: chi2_red {d.final_chi2_red:.3g} {model} (p = {p_fit:.2g} "
+        "against the noise floor) and no candidate explains the rest; worst positions "
+        f"(0-based rows) {per}"
+        + (f"; the residual correlates with {corr}" if corr else "")
+        + "; an effect outside the catalogue may be missing: write it as a --plugin"
+        + (f"; {d.warning}" if d.warning else "")
+    )
+
+
+def _wander_summary(wander: dict[str, Any]) -> str:
+    parts = []
+    for s in ("gyro", "accel"):
+        if s in wander:
+            taus = [v for v in wander[s]["tau_s"] if v is not None]
+            tau = f", tau {max(taus) / 3600:.3g} h" if taus else ""
+            parts.append(f"{s} sigma {max(wander[s]['sigma']):.3g}{tau}")
+    return "; ".join(parts)
+
+
+def _residual_correlations(fit: Fit, base: CalibrationResult) -> dict[str, float]:
+    """Pearson r of each invariant's per-position whitened residual with the variables that
+    could drive a missing effect (temperature, its rate, time, the gravity direction)."""
+    pos = fit.problem.positions
+    cols = pos.columns
+    drivers: dict[str, np.ndarray] = {}
+    for k in ("temperature_c", "temperature_rate_c_per_h"):
+        if k in cols:
+            drivers[k] = np.asarray(cols[k], float)
+    if "start_s" in cols and "end_s" in cols:
+        drivers["time_h"] = 0.5 * (cols["start_s"] + cols["end_s"]) / 3600.0
+    site = site_context(pos, values_by_term(base.layout, base.theta), fit.problem.latitude_deg,
+                        fit.problem.height_m)  # fmt: skip
+    for k in ("gravity_direction", "north"):
+        if k in site:
+            drivers.update({f"{k}_{a}": site[k][:, j] for j, a in enumerate("xyz")})
+    raw = fit.problem.raw_residuals(fit.theta[None])
+    out: dict[str, float] = {}
+    for inv, v in raw.items():
+        if inv not in ("gyro_norm", "accel_norm", "dot"):
+            continue
+        w = v[0] / fit.problem.sigma[inv]
+        rows = fit.problem.rows_of(inv)
+        for k, x in drivers.items():
+            x = x[rows]
+            if np.ptp(x) > 0 and np.ptp(w) > 0:
+                out[f"{inv} vs {k}"] = float(np.corrcoef(w, x)[0, 1])
+    return dict(sorted(out.items(), key=lambda kv: -abs(kv[1])))

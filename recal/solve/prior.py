@@ -1,0 +1,110 @@
+"""The prior of a calibration: what it is, true to its values (:func:`describe_prior`), and how
+uncertain: the 1-sigma a held coefficient carries into the covariance and the observability bar
+(:class:`HeldUncertainty`, :func:`_prior_uncertainty`; the defaults are in
+:mod:`recal.solve.consider`)."""
+
+from __future__ import annotations
+
+import typing
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from recal.model.coefficients import CoefficientSet
+from recal.model.error_model import ParameterLayout
+from recal.model.positions import Positions
+from recal.solve.consider import prior_sigma, sensor_class
+from recal.solve.earth_rate import MIN_EARTH_RATE_CONTRAST
+from recal.solve.start import DataPrior
+
+# annotations only: recal.solve.calibrate imports this module (typing.TYPE_CHECKING, so that
+# recal.calibrate's deprecated * import, which takes this module's names, gets no TYPE_CHECKING)
+if typing.TYPE_CHECKING:
+    from recal.solve.calibrate import CalibrationOptions
+
+
+class HeldUncertainty(NamedTuple):
+    """The prior's 1-sigma that the held coefficients carry into ``CalibrationResult.covariance``."""
+
+    sensor_class: str  # which defaults a data-derived prior used (recal.solve.consider)
+    source: dict[str, str]  # term name -> where its prior sigma came from
+    sigma: np.ndarray  # (D,) prior 1-sigma per parameter
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
+
+    def bar(self, layout: ParameterLayout, typical: np.ndarray) -> np.ndarray:
+        """(D,) the observability bar (recal.solve.observability.analyze ``bar``): a prior
+        file's 1-sigma over the typical change where it is looser, else 1. Class defaults and a
+        data-derived start's own 1-sigma are guesses, not knowledge: they never lower it."""
+        out = np.ones(len(typical))
+        for name, sl in layout.term_slices().items():
+            if self.source.get(name, "").startswith("prior file"):
+                out[sl] = np.maximum(self.sigma[sl] / typical[sl], 1.0)
+        return out
+
+
+def describe_prior(
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    how: dict[str, str],
+    given: CoefficientSet | None = None,
+    gyro_from_slews: bool = False,
+) -> str:
+    """What the prior ``theta0`` is, true to its values: the given file and the terms it lacks
+    (taken from the data), how each triad's scale and bias were derived from the data (``how``,
+    :class:`recal.solve.start.DataPrior`: an ellipsoid fit, or a common scale from the median
+    norm when the positions cannot support one; the slews for a gyro blind to Earth rate), and
+    which other terms start at zero."""
+    slices = layout.term_slices()
+    from_data = [t for m in layout.models for t in m.terms
+                 if given is None or given.values.get(t.name) is None]  # fmt: skip
+    parts = []
+    for m in layout.models:
+        if not any(t.name in (f"{m.sensor}.scale", f"{m.sensor}.bias") for t in from_data):
+            continue
+        if m.sensor == "gyro" and gyro_from_slews:
+            parts.append("gyro: common scale from the slews, bias the mean window output")
+        else:
+            parts.append(f"{m.sensor}: {how[m.sensor]}")
+    zero = [t.name for t in from_data if t.group not in ("scale", "bias")
+            and np.all(theta0[slices[t.name]] == np.asarray(t.neutral, float))]  # fmt: skip
+    if zero:
+        parts.append(f"{', '.join(zero)} zero")
+    other = [t.name for t in from_data if t.group not in ("scale", "bias") and t.name not in zero]
+    if other:
+        parts.append(f"{', '.join(other)} from the data")
+    if given is None:
+        return f"data-derived ({'; '.join(parts)})"
+    source = str(given.metadata.get("source", "given prior"))
+    return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
+
+
+def _gyro_prior_sigma(
+    positions: Positions,
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    opt: CalibrationOptions,
+    start: DataPrior,
+) -> dict[str, np.ndarray]:
+    """The gyro's prior 1-sigma (bias deg/h, scale in its units) as the held coefficients get it
+    (:func:`_prior_uncertainty`), for the Earth-rate heading check of closed turns."""
+    own = start.sigma if opt.prior is None and start.sigma.shape == theta0.shape else None
+    held = _prior_uncertainty(positions, layout, theta0, layout.typical(theta0), opt, own)
+    sl = layout.term_slices()
+    return {n: held.sigma[sl[n]] for n in ("gyro.bias", "gyro.scale")}
+
+
+def _prior_uncertainty(
+    positions: Positions,
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    opt: CalibrationOptions,
+    start_sigma: np.ndarray | None = None,
+) -> HeldUncertainty:
+    """The prior's 1-sigma per parameter (recal.solve.consider.prior_sigma) and where it came from."""
+    cls = sensor_class(positions, layout, theta0, MIN_EARTH_RATE_CONTRAST)
+    given = opt.prior.uncertainty if opt.prior else None
+    sigma, source = prior_sigma(layout, theta0, typical, given, cls, start_sigma)
+    return HeldUncertainty(cls, source, sigma)

@@ -1,0 +1,165 @@
+"""What a calibration reports: the residuals of each invariant before and after the fit
+(:func:`residual_summary`), what its 1-sigma values mean (:func:`uncertainty_kind`) and the
+JSON of a :class:`recal.solve.calibrate.CalibrationResult` (:func:`result_json`; the result's
+methods of the same names call these)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from recal.model.coefficients import CoefficientSet, layout_like
+from recal.model.reference import OMEGA_IE_DEG_H
+
+if TYPE_CHECKING:  # annotations only: recal.solve.calibrate imports this module
+    from recal.solve.calibrate import CalibrationResult
+
+#: The unit of each invariant's residuals (the JSON's residuals.<invariant>.unit).
+UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
+         "rotation": "rad", "closure": "rad"}  # fmt: skip
+
+
+#: What the Monte Carlo spread means (the JSON's mc.kind): each run on perturbed data ...
+MC_KIND = (
+    "spread over the Monte Carlo runs, each run fitted to the data perturbed by its window noise "
+    "(antithetic pairs): the measurement uncertainty plus the solver's own scatter, a check on "
+    "'uncertainty' (the Gauss-Newton 1-sigma, which the product reports)"
+)
+#: ... or, in paper mode, every run on the same data
+MC_KIND_PAPER = (
+    "spread over the Monte Carlo runs on the same data: solver repeatability, not measurement "
+    "uncertainty (see 'uncertainty')"
+)
+
+
+def residual_summary(result: CalibrationResult) -> dict[str, Any]:
+    """The JSON's ``residuals``: per invariant its RMS at the prior and at the fit, the noise
+    floor and its source, the seed's eq. 14 indicator, and per-position (slew, turn, rotation)
+    residuals."""
+    before = result.problem.raw_residuals(result.theta_prior[None])
+    after = result.problem.raw_residuals(result.theta[None])
+    ind_before = result.problem.indicator(result.theta_prior[None])
+    ind_after = result.problem.indicator(result.theta[None])
+    out = {}
+    for n in result.problem.invariant_names:
+        noise = result.problem.noise_known_for(n)
+        out[n] = {
+            "unit": UNITS[n],
+            "reference": result.problem.reference(n),
+            "rms_before": float(np.sqrt(np.mean(before[n] ** 2))),
+            "rms_after": float(np.sqrt(np.mean(after[n] ** 2))),
+            "noise_floor": float(np.sqrt(np.mean(result.problem.sigma[n] ** 2))) if noise else None,
+            "noise_source": result.problem.sigma_source.get(n),
+            "indicator_eq14_before": float(ind_before[n][0]),
+            "indicator_eq14_after": float(ind_after[n][0]),
+            "per_position": [float(v) for v in after[n][0]],
+        }
+        if n in ("gyro_norm", "dot") and result.problem.gyro_rows is not None:
+            # accelerometer-only windows (gyro not still) are left out: name the rows
+            out[n]["rows"] = [int(i) for i in result.problem.gyro_rows]
+        if n == "rotation":
+            out[n]["per_rotation"] = out[n].pop("per_position")
+            out[n]["rotations"] = result.problem.n_of(n) // 3
+            if noise:
+                w = after[n][0] / result.problem.sigma[n]
+                out[n]["chi2_red"] = float(np.mean(w * w))
+        if n == "closure":
+            turns = result.problem.closed_turns
+            assert turns is not None
+            out[n]["per_turn"] = out[n].pop("per_position")
+            out[n]["slews"] = [int(i) for i in turns.index]
+            out[n]["turns"] = [int(k) for k in turns.turns]
+            out[n]["how"] = [
+                c.how for i in turns.index for c in result.problem.turn_candidates if c.slew == i
+            ]
+            out[n]["closure_sigma_deg"] = [float(v) for v in np.degrees(turns.sigma_rad)]
+            if noise:
+                w = after[n][0] / result.problem.sigma[n]
+                out[n]["chi2_red"] = float(np.mean(w * w))
+        if n == "slew":
+            out[n]["per_slew"] = out[n].pop("per_position")
+            excess = float(result.problem.slew_excess_rad)
+            out[n]["unmodelled_excess_rad"] = excess
+            if noise and excess > 0:  # the floor above includes it: the windows' own too
+                var = np.clip(result.problem.sigma[n] ** 2 - excess**2, 0, None)
+                out[n]["window_noise_floor"] = float(np.sqrt(np.mean(var)))
+            out[n]["slews"] = result.problem.n_of(n) // 2
+            out[n]["earth_rate"] = (
+                "removed with the first window's calibrated rest rate"
+                if result.problem.slew_earth_rate
+                else "left in, as noise (the gyro cannot see Earth rate)"
+            )
+            if noise:
+                w = after[n][0] / result.problem.sigma[n]
+                out[n]["chi2_red"] = float(np.mean(w * w))
+    return out
+
+
+def uncertainty_kind(result: CalibrationResult) -> str:
+    """What the 1-sigma values mean, and which noise they come from."""
+    sources = ", ".join(sorted(set(result.problem.sigma_source.values())))
+    held = (
+        "; plus what the held coefficients' prior uncertainty moves them by (consider "
+        "covariance); a held coefficient's 1-sigma is its prior's"
+    )
+    if result.problem.noise_known:
+        return (
+            f"Gauss-Newton 1-sigma from the window noise ({sources}) propagated through the "
+            "invariants (scaled by max(1, chi2_red))" + held
+        )
+    if result.observability.redundancy == 0:
+        return "unknown: no noise columns and no redundancy to estimate the noise from"
+    return (
+        f"Gauss-Newton 1-sigma with the noise estimated from the fit residuals ({sources})" + held
+    )
+
+
+def result_json(result: CalibrationResult) -> dict[str, Any]:
+    """``result`` as the calibration JSON (what ``recal calibrate`` writes, and the daemon keeps)."""
+    terms = result.terms
+    out: dict[str, Any] = {
+        "coefficients": result.coefficients.to_json_dict(terms),
+        "status": layout_like(result.status, str, terms),
+        "uncertainty": layout_like(
+            result.uncertainty, lambda v: None if not np.isfinite(v) else float(v), terms
+        ),
+        "uncertainty_kind": result.uncertainty_kind(),
+        "noise_source": dict(result.problem.sigma_source),
+        "observability": result.observability.to_json_dict(),
+        "residuals": result.residual_summary(),
+        "chi2_red": result.chi2_red if np.isfinite(result.chi2_red) else None,
+        "method": result.method,
+        "sensor": "both" if len(result.problem.sensors) == 2 else result.problem.sensors[0],
+        "positions": result.problem.M,
+        "latitude_deg": result.problem.latitude_deg,
+        "height_m": result.problem.height_m,
+        "gravity_g": result.problem.gravity_g,
+        "earth_rate_deg_h": OMEGA_IE_DEG_H,
+        "prior": result.prior_source,
+        "evaluations": result.evaluations,
+        "wall_time_s": result.wall_time_s,
+        "notes": result.notes,
+    }
+    if result.noise_model:
+        out["noise_model"] = dict(result.noise_model)
+    if result.problem.turn_candidates:
+        out["turn_closure"] = {
+            "declared_sigma_deg": result.turn_closure_declared_deg or None,
+            "candidates": [c.to_json_dict() for c in result.problem.turn_candidates],
+        }
+    if result.convergence:
+        out["converged"] = bool(result.convergence.get("converged"))
+        out["convergence"] = dict(result.convergence)
+    if result.held_uncertainty is not None:
+        out["held_uncertainty"] = result.held_uncertainty.to_json_dict()
+    if result.mcs is not None:
+        split = CoefficientSet.from_vector
+        out["mc"] = {
+            "runs": int(result.mcs.runs.shape[0]),
+            "cycles": result.mcs.cycles,
+            "mean": split(result.layout, result.mcs.mean).to_json_dict(terms),
+            "std": split(result.layout, result.mcs.std).to_json_dict(terms),
+            "kind": MC_KIND_PAPER if result.method.endswith("(paper mode)") else MC_KIND,
+        }
+    return out

@@ -1,0 +1,129 @@
+"""Bias wander in a calibration: the fit done again with the windows' bias wander in their
+covariance (:func:`_with_wander`), "auto" estimating it from the fit's residuals where the
+session is long enough, and the note that says so. The wander model and its test are in
+:mod:`recal.solve.wander`; this is calibrate's glue to it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from recal.errors import RecalInputError
+from recal.solve.convergence import fixed_point
+from recal.solve.lm import solve_lm
+from recal.solve.observability import ObservabilityReport, jacobian
+from recal.solve.problem import Problem
+from recal.solve.wander import WANDER_SIGNIFICANCE as WANDER_TEST
+
+if TYPE_CHECKING:  # annotations only: recal.solve.calibrate imports this module
+    from recal.solve.calibrate import CalibrationOptions
+
+
+#: "auto" looks for bias wander only where the windows span at least this long, s: over a
+#: session of minutes an excess misfit is model error (a warming MEMS drifts, a hand-turned
+#: unit flexes), which wander would only hide (imucal's Ferraris session: an accel "wander" of
+#: 0.24 counts that tripled the bias sigma).
+WANDER_MIN_SPAN_S = 3600.0
+
+
+#: ... and up to this many window residuals (the whitening is dense: R^2 memory, R^3 time).
+WANDER_MAX_RESIDUALS = 1500
+
+
+def _with_wander(
+    problem: Problem,
+    theta: np.ndarray,
+    theta0: np.ndarray,
+    typical: np.ndarray,
+    report: ObservabilityReport,
+    opt: CalibrationOptions,
+) -> tuple[Problem, np.ndarray, dict[str, Any], int]:
+    """The fit again with the windows' bias wander in their covariance (recal.solve.wander):
+    ``opt.wander`` "auto" estimates it from this fit's residuals (kept only when significant),
+    a WanderModel is taken as given. Returns the problem, the estimate, the JSON noise model
+    and the evaluations spent."""
+    from recal.solve.wander import (
+        TAU_GRID_S,
+        WanderModel,
+        estimate_wander,
+        window_sessions,
+        window_times,
+    )
+
+    windows = problem.window_invariants
+    t = window_times(problem.positions.columns, problem.M)
+    out: dict[str, Any] = {
+        "windows": "their own standard errors (sem or std columns)",
+        "times": "start_s/end_s" if t is not None else None,
+    }
+    if isinstance(opt.wander, WanderModel):
+        model = opt.wander
+    elif opt.wander == "auto":
+        sessions = window_sessions(problem.positions.columns, problem.M)
+        span = 0.0 if t is None else _longest_session_span(t, sessions)
+        if span < WANDER_MIN_SPAN_S or problem.window_sigma().size > WANDER_MAX_RESIDUALS:
+            out["wander"] = None
+            out["wander_test"] = (
+                f"not estimated: the windows span {span / 3600:.2g} h (wander between windows "
+                f"is looked for over {WANDER_MIN_SPAN_S / 3600:g} h or more; over a shorter "
+                "session an excess is model error, recal diagnose)"
+                if span < WANDER_MIN_SPAN_S
+                else f"not estimated: more than {WANDER_MAX_RESIDUALS} window residuals"
+            )
+            return problem, theta, out, 0
+        raw = problem.raw_residuals(theta[None])
+        sigma_w = problem.window_sigma()
+        r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
+        T = typical[:, None] * report.basis
+        J = jacobian(problem, theta, T.T)[: len(r_std)]
+        taus = [tau for tau in TAU_GRID_S if tau <= 2.0 * span]  # slower is a bias over the span
+        model, fits = estimate_wander(
+            r_std, sigma_w, problem.wander_sensitivity(theta), t, taus=taus, jacobian=J,
+            sessions=sessions,
+        )  # fmt: skip
+        out["wander_test"] = [
+            {"sensor": f.sensor, "gain_2lnL": round(float(f.gain), 3), "threshold": WANDER_TEST,
+             "significant": bool(f.significant), "sigma": float(f.sigma),
+             "tau_s": float(f.tau_s), "sigma_ml": float(f.sigma_ml), "tau_ml_s": float(f.tau_ml_s),
+             "sigma_carried": float(f.sigma_carried), "sigma_upper": float(f.sigma_upper),
+             **({} if f.joint_gain is None else {"joint_gain_2lnL": round(float(f.joint_gain), 3)})}
+            for f in fits
+        ]  # fmt: skip
+    else:
+        raise RecalInputError(f"wander must be None, 'auto' or a WanderModel, not {opt.wander!r}")
+    if model.empty:
+        out["wander"] = None
+        return problem, theta, out, 0
+    problem = problem.with_wander(model, theta)
+    out["wander"] = model.to_json_dict()
+    if opt.method == "lm" or opt.polish:
+        fixed = fixed_point(problem, theta, theta0, typical, report.basis)
+        return fixed.problem, fixed.theta, out, fixed.evaluations
+    lm = solve_lm(problem, theta, typical[:, None] * report.basis)
+    out["note"] = "the swarm's answer refined by LM on the covariance with the wander"
+    return problem, lm.theta, out, lm.evaluations
+
+
+def _longest_session_span(t: np.ndarray, sessions: np.ndarray | None) -> float:
+    """The longest time the windows of one session span, s (sessions restart the clock)."""
+    if sessions is None:
+        return float(np.ptp(t))
+    return max(float(np.ptp(t[sessions == k])) for k in np.unique(sessions))
+
+
+def _wander_note(wander: dict[str, Any]) -> str:
+    parts = []
+    for s in ("gyro", "accel"):
+        if s in wander:
+            sig = max(wander[s]["sigma"])
+            tau = max((v for v in wander[s]["tau_s"] if v is not None), default=None)
+            parts.append(
+                f"{s} {sig:.3g} (output units)"
+                + ("" if tau is None else f", correlation time {tau / 3600:.3g} h")
+            )
+    return (
+        "the windows share a bias wander ("
+        + "; ".join(parts)
+        + f", {wander.get('source', 'given')}): the fit and its 1-sigma carry it (noise_model)"
+    )
