@@ -126,11 +126,10 @@ def run_unit(seed: int, method: str) -> dict:
     cfg = DriftConfig.per_days(30, 24.0 / u.gap_h)
     later = np.arange(CAL, CAL + LATER)
 
-    def inputs(p: Positions):
+    def inputs(p: Positions, wander=drift_wander):
         return drift_inputs(
-            p.subset(later), cal.coefficients, cal.covariance, u.latitude_deg, 0.0,
-            wander=drift_wander,
-        )  # fmt: skip
+            p.subset(later), cal.coefficients, cal.covariance, u.latitude_deg, 0.0, wander=wander
+        )
 
     def alarm(p: Positions) -> int | None:
         return drift_test(inputs(p), cfg).alarm_window
@@ -138,7 +137,9 @@ def run_unit(seed: int, method: str) -> dict:
     vals = {k: np.array(v, float).copy() for k, v in TRUTH.values.items()}
     vals["gyro.scale"][u.step_axis] *= 1.0 + STEP_PPM * 1e-6
     stepped = u.positions(CoefficientSet(vals))
-    steady = alarm(pos)
+    null = inputs(pos)
+    unchanged = drift_test(null, cfg)  # the unit unchanged: its alarm and the GLR's threshold
+    steady, h = unchanged.alarm_window, unchanged.threshold
     # the same test given the simulated wander (output units): what a perfect estimate would do
     nz = u.noise()
     truth_model = WanderModel({
@@ -146,15 +147,11 @@ def run_unit(seed: int, method: str) -> dict:
                        np.full(3, nz.gm_tau_s))
         for s in ("gyro", "accel")
     })  # fmt: skip
-    steady_true = drift_test(
-        drift_inputs(pos.subset(later), cal.coefficients, cal.covariance, u.latitude_deg, 0.0,
-                     wander=truth_model), cfg,
-    ).alarm_window  # fmt: skip
+    steady_true = drift_test(inputs(pos, truth_model), cfg).alarm_window
     # one false alarm per 30 days at the unit's window rate: the chance of one in LATER windows
     expected = min(1.0, LATER / cfg.false_alarm_windows)
     # what any test has to work with: Delta^2 I_jj of the true step by window WITHIN (a test
-    # that knew the coefficient and the change window), and the GLR's threshold
-    null = inputs(pos)
+    # that knew the coefficient and the change window)
     _, C = whiten(null)
     D = C.shape[2]
     F = np.concatenate([np.zeros((1, D, D)), np.cumsum(np.einsum("mid,mie->mde", C, C), axis=0)])
@@ -163,7 +160,6 @@ def run_unit(seed: int, method: str) -> dict:
     info = _parts(F, V * np.sqrt(np.clip(ev, 0, None)), WITHIN - 1, np.array([0]))[1][0, j]
     delta = STEP_PPM * 1e-6 * cal.coefficients.values["gyro.scale"][u.step_axis]
     lam = float(delta**2 * info)
-    h = drift_test(null, cfg).threshold
     delays = {}
     for at in (0, 10):
         a = alarm(_splice(pos, stepped, CAL + at))

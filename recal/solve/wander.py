@@ -279,7 +279,7 @@ def estimate_wander(
 
     def against(base: np.ndarray) -> Any:
         """A maker: unit covariance -> the restricted -log L of sigma^2 (that unit covariance
-        times sigma^2 added to ``base``). With L L^T = I + B (B: base, standardised), I + B + s2 U =
+        times sigma^2 added to ``base``; None: ``base`` alone). With L L^T = I + B (B: base, standardised), I + B + s2 U =
         L (I + s2 W) L^T, W = L^-1 U L^-T = V diag(lam) V^T: one Cholesky per triad and one
         eigendecomposition per tau, then each sigma costs O(R k^2) (a golden-section search
         of 30 steps per tau: 200 windows in seconds, not minutes)."""
@@ -288,12 +288,15 @@ def estimate_wander(
         z0 = solve_triangular(L, r_std, lower=True)
         J0 = None if J is None else solve_triangular(L, J, lower=True)
 
-        def make(unit: np.ndarray) -> Any:
-            X = solve_triangular(L, unit / np.outer(sigma, sigma), lower=True)
-            lam, V = np.linalg.eigh(solve_triangular(L, X.T, lower=True))
-            lam = np.clip(lam, 0.0, None)
-            z = V.T @ z0
-            Jv = None if J0 is None else V.T @ J0
+        def make(unit: np.ndarray | None) -> Any:
+            if unit is None:  # the base covariance alone: nothing to decompose
+                lam, z, Jv = np.zeros(R), z0, J0
+            else:
+                X = solve_triangular(L, unit / np.outer(sigma, sigma), lower=True)
+                lam, V = np.linalg.eigh(solve_triangular(L, X.T, lower=True))
+                lam = np.clip(lam, 0.0, None)
+                z = V.T @ z0
+                Jv = None if J0 is None else V.T @ J0
 
             def f(s2: float) -> float:
                 d = 1.0 / (1.0 + s2 * lam)
@@ -389,10 +392,8 @@ def _joint_test(
     trial = dict(found)
     for f in pending:
         trial[f.sensor] = TriadWander(np.full(3, f.sigma_ml), np.full(3, f.tau_ml_s))
-    R = len(next(iter(sensitivity.values())))
-    zero = np.zeros((R, R))
-    n_kept = against(wander_covariance(sensitivity, t, kept, sessions))(zero)(0.0)
-    n_all = against(wander_covariance(sensitivity, t, WanderModel(trial), sessions))(zero)(0.0)
+    n_kept = against(wander_covariance(sensitivity, t, kept, sessions))(None)(0.0)
+    n_all = against(wander_covariance(sensitivity, t, WanderModel(trial), sessions))(None)(0.0)
     gain = 2.0 * (n_kept - n_all)
     if gain <= float(chi2_dist.ppf(0.99, 3 * len(pending))):
         return fits
