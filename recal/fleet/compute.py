@@ -2,7 +2,7 @@
 
 The rates are estimated by maximum likelihood (recal.fleet.estimate) over every change; the
 units whose changes fail the outlier test (recal.fleet.outliers) are then set aside and the
-rates estimated again without them, so that a few units ageing ten times faster (a failing
+rates estimated again without them (until the flags settle), so that a few units ageing ten times faster (a failing
 source, a unit dropped in transit) neither inflate the figure sent to the others nor hide
 among them. The units flagged are tested once more against the clean figure and listed in the
 prior with their statistic.
@@ -21,6 +21,9 @@ from recal.fleet.history import Changes, VersionTable, is_relative
 from recal.fleet.outliers import FALSE_ALARM, outlier_units
 from recal.fleet.prior import CoefficientAgeing, FleetPrior
 
+#: Rounds of "estimate, flag, set aside" at most (the flags settle in one or two).
+MAX_ROUNDS = 4
+
 
 def fleet_prior(
     versions: VersionTable | Changes,
@@ -36,11 +39,16 @@ def fleet_prior(
     used it. ``false_alarm``: of the per-unit outlier test.
     """
     changes = versions.changes() if isinstance(versions, VersionTable) else versions
-    first = random_walk_rate(changes.delta, changes.months, changes.variance)
-    flagged = outlier_units(changes, first.rate, false_alarm)
-    clean = changes.without([o.unit for o in flagged]) if flagged else changes
-    est = random_walk_rate(clean.delta, clean.months, clean.variance)
+    est = random_walk_rate(changes.delta, changes.months, changes.variance)
     outliers = outlier_units(changes, est.rate, false_alarm)
+    clean, aside = changes, set()
+    for _ in range(MAX_ROUNDS):  # set aside the flagged units until the flags settle
+        if {o.unit for o in outliers} == aside:
+            break
+        aside = {o.unit for o in outliers}
+        clean = changes.without(sorted(aside))
+        est = random_walk_rate(clean.delta, clean.months, clean.variance)
+        outliers = outlier_units(changes, est.rate, false_alarm)
     seen = np.isfinite(clean.delta)
     units = np.zeros((len(clean.units), len(clean.names)))
     np.add.at(units, clean.unit, seen)  # changes per unit and coefficient

@@ -92,7 +92,12 @@ class FleetPrior:
         return change
 
     # ---- the file ----------------------------------------------------------------------
-    def to_json_dict(self) -> dict[str, Any]:
+    def to_json_dict(self, brief: bool = False) -> dict[str, Any]:
+        """The file's object; ``brief``: only which prior it is (format, version, model,
+        created_at), as a calibration records the prior it used."""
+        if brief:
+            return {"format": self.format, "version": self.version, "model": self.model,
+                    "created_at": self.created_at}  # fmt: skip
         return {
             "format": self.format,
             "version": self.version,
