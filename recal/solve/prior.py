@@ -116,7 +116,7 @@ def _prior_uncertainty(
     months = getattr(opt, "prior_age_months", None)
     if fleet is None or months is None or opt.prior is None:
         return HeldUncertainty(cls, source, sigma)
-    sigma, source = aged_sigma(layout, theta0, sigma, source, fleet, months)
+    sigma, source = aged_sigma(layout, theta0, sigma, source, fleet, months, given)
     used = {"model": fleet.model, "version": fleet.version, "created_at": fleet.created_at,
             "months": float(months)}  # fmt: skip
     return HeldUncertainty(cls, source, sigma, used)
@@ -129,12 +129,13 @@ def aged_sigma(
     source: dict[str, str],
     fleet: Any,
     months: float,
+    given: Any = None,
 ) -> tuple[np.ndarray, dict[str, str]]:
     """A prior file's 1-sigma aged by the fleet prior over ``months`` of service (issue 28):
     where the file states its 1-sigma (the accepted version's measurement error), the fleet's
     change over the months is added in quadrature; where it has none (the datasheet's typical
-    change stood in), the fleet's change replaces it. Coefficients the fleet has no figure for
-    keep theirs."""
+    change stood in), the fleet's change replaces it. ``given``: the file's uncertainty by term
+    (NaN where it has none). Coefficients the fleet has no figure for keep theirs."""
     change = fleet.typical_change(layout.names, months, theta0)
     out, src = sigma.copy(), dict(source)
     what = f"fleet prior {fleet.model} v{fleet.version} over {months:.3g} months"
@@ -143,8 +144,9 @@ def aged_sigma(
         ok = np.isfinite(c)
         if not np.any(ok):
             continue
-        stated = src.get(name, "").startswith("prior file")
-        aged = np.hypot(out[sl], c) if stated else c
-        out[sl] = np.where(ok, aged, out[sl])
-        src[name] = f"{src.get(name)} + {what}" if stated else what
+        own = None if given is None else given.get(name)
+        own = np.asarray(own, float) if own is not None else np.full(c.shape, np.nan)
+        stated = np.isfinite(own) if own.shape == c.shape else np.zeros(c.shape, bool)
+        out[sl] = np.where(ok, np.where(stated, np.hypot(out[sl], c), c), out[sl])
+        src[name] = f"{src.get(name)} + {what}" if np.any(stated & ok) else what
     return out, src
