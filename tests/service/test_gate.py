@@ -246,3 +246,39 @@ def test_the_fleet_prior_setting_refuses_a_newer_format_at_start(tmp_path) -> No
     with pytest.raises(RecalInputError, match=r"\[gate\] fleet_prior: .*p.json: format "
                        r"recal.fleet_prior/9 is newer than this recal reads"):  # fmt: skip
         read_fleet_prior_file(str(path))
+
+
+def test_the_scheduler_gives_its_jobs_the_fleet_prior_and_the_months(tmp_path, document) -> None:
+    """``[gate] fleet_prior`` reaches every job with the months since the current version."""
+    from datetime import UTC, datetime, timedelta
+    from types import SimpleNamespace
+
+    from recal.fleet.prior import CoefficientAgeing, FleetPrior
+    from service.config import load_settings
+    from service.db import Store
+    from service.scheduler import Scheduler
+    from service.startup import write_fleet_prior_file
+
+    path = tmp_path / "fleet.json"
+    figure = CoefficientAgeing(1e-5, 1e-6, False, 50, 400)
+    write_fleet_prior_file(str(path), FleetPrior("KVH-1750", 5, "2026-11-01T00:00:00Z",
+                                                 {"accel.bias.bx": figure}))  # fmt: skip
+    settings = load_settings(gate={"fleet_prior": str(path)}, scheduler={"use_slews": False})
+    store = Store(f"sqlite:///{tmp_path / 'recal.db'}")
+    store.create_schema()
+    seed = TRUTH.values
+    unit = {n: np.ones(3) if n.endswith("scale") else np.zeros_like(v) for n, v in seed.items()}
+    positions = simulate_positions(CoefficientSet(unit), seed=1)  # a KVH: deg/h and g
+    store.add_positions(store.add_session("test"), positions.columns)
+    store.add_calibration(CalibrationRecord(
+        created_at=datetime.now(UTC) - timedelta(days=91.3), trigger="manual", method="lm",
+        accepted=True, document=document,
+    ))  # fmt: skip
+    submitted = []
+    runner = SimpleNamespace(busy=False, submit=lambda fn, args, on_end: submitted.append(args))
+    events = SimpleNamespace(emit=lambda *a, **k: None)
+    Scheduler(store, settings, None, events=events, runner=runner).trigger("manual")
+    (args,) = submitted
+    assert args[1].fleet_prior.version == 5
+    assert args[1].prior_age_months == pytest.approx(3.0, abs=0.01)
+    assert args[3]["fleet_prior"] == str(path)
