@@ -392,6 +392,12 @@ class GateSettings(Section):
     navigation_margin_nmi: float = Field(
         0.0, ge=0, description="tolerance of refuse_worse_navigation (nautical miles)"
     )
+    fleet_prior: str | None = Field(
+        None,
+        description="fleet prior JSON (recal.fleet_prior/N, from the shore's GET /fleet/prior): "
+        "its change over the months since the current version replaces the datasheet's typical "
+        "change in the jump limit and the held coefficients' 1-sigma (unset: no ageing allowed)",
+    )
 
 
 class ApiSettings(Section):
