@@ -9,6 +9,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from threadpoolctl import threadpool_limits
+
+# One BLAS thread per test process: the suite runs on as many pytest workers as the machine
+# has cores (README: pytest -n 2 on 2 cores), and OpenBLAS's own threads on top of that thrash
+# (measured: a wander fit 0.87 s with one thread, 7.0 s with two under the suite's load). The
+# environment reaches the daemons and CLIs tests start as subprocesses; threadpoolctl covers
+# this process, where numpy may already be loaded. The engine's own pools set 1 themselves.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+threadpool_limits(1, user_api="blas")
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
