@@ -262,8 +262,8 @@ class FleetStore:
                     statement = insert(table).values(ordered[i : i + CHUNK_ROWS])
                     statement = statement.on_conflict_do_nothing(
                         index_elements=["unit_id", "vessel_id"]
-                    )
-                    stored += s.execute(statement).rowcount
+                    ).returning(table.c.vessel_id)  # the rows inserted, not those ignored
+                    stored += len(s.connection().execute(statement).all())
             s.add(IngestRow(unit_id=unit.id, at=now, compressed_bytes=compressed_bytes,
                             rows=len(batch.rows), stored=stored))  # fmt: skip
         return stored, len(batch.rows) - stored
