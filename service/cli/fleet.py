@@ -10,10 +10,16 @@ from __future__ import annotations
 import argparse
 import sys
 
+from service.cli.serve import _SETTINGS, _SettingsHelpFormatter
+
 _CONFIG_HELP = (
     "the shore's TOML settings: database_url, [api] host, port, token (the administrator's); "
     "RECAL_* environment variables override them (RECAL_DATABASE_URL, RECAL_API__TOKEN)"
 )
+
+
+class _ShoreHelpFormatter(_SettingsHelpFormatter):
+    settings_cls = "service.fleet.config:ShoreSettings"
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -28,6 +34,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="upgrade the shore's schema and serve its API (POST /fleet/ingest, GET /fleet/...)",
         description="Upgrade the shore's database schema, then serve its HTTP API until "
         "SIGINT/SIGTERM.",
+        epilog=_SETTINGS,
+        formatter_class=_ShoreHelpFormatter,
     )
     q.add_argument("--config", required=True, metavar="FILE.toml", help=_CONFIG_HELP)
     q.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),

@@ -1,4 +1,4 @@
-"""The shore's reads (conventions section 11, docs/fleet.md#shore-rest) over real HTTP: the two
+"""The shore's reads (docs/fleet.md, "Shore REST") over real HTTP: the two
 fixed endpoints' shapes, the other reads' filters and pages, the published schema."""
 
 from __future__ import annotations
