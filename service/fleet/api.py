@@ -9,6 +9,7 @@ if absent. No token or an unknown one: 401.
 from __future__ import annotations
 
 import hmac
+import logging
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any
@@ -24,6 +25,8 @@ from service.db import StoreError
 from service.fleet.batch import BatchError, read_batch
 from service.fleet.config import ShoreApiSettings
 from service.fleet.store import FleetStore, Unit
+
+log = logging.getLogger("recal.fleet")
 
 #: Most rows one read returns; default page sizes below it.
 MAX_LIMIT = 1000
@@ -224,6 +227,8 @@ def _routes(app: FastAPI) -> None:
         if batch.unit != who.unit.serial:
             raise HTTPException(403, f"this token is not unit {batch.unit}'s")
         stored, duplicates = await run_in_threadpool(store.ingest, who.unit, batch, len(body))
+        log.info("%s: %d rows stored, %d duplicates (%d bytes)", who.unit.serial, stored,
+                 duplicates, len(body))  # fmt: skip
         return IngestOut(stored=stored, duplicates=duplicates)
 
     @app.get("/fleet/units", response_model=list[UnitOut])
