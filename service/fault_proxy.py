@@ -32,8 +32,10 @@ Faults (``Faults``; ``proxy.set(**changes)`` changes some, ``proxy.clear()`` rem
 Exchanges are told apart by the direction of the traffic: client bytes after server bytes
 start a new one. Every random draw comes from a generator seeded by ``(seed, connection
 number)``, four per exchange, so a client that makes the same requests in the same order meets
-the same faults at the same bytes (``proxy.cuts``); ``outage_schedule(seed, ...)`` makes a
-reproducible timetable of outages that ``proxy.play`` applies while a benchmark runs.
+the same faults in the same exchanges, a request cut at the same byte (``proxy.cuts``; an
+answer is cut within the first chunk the proxy reads of it, whose size the sockets decide);
+``outage_schedule(seed, ...)`` and ``outages`` make a reproducible timetable of outages that
+``proxy.play`` applies while a benchmark runs.
 
 Everything runs on one event-loop thread; ``close()`` (the end of the ``with``) cuts every
 connection, closes every socket and joins the thread. ``proxy.stats`` is a snapshot readable
@@ -51,6 +53,7 @@ import argparse
 import asyncio
 import contextlib
 import dataclasses
+import os
 import random
 import re
 import sys
@@ -700,7 +703,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         proxy.start()
     except OSError as exc:
         host, port = args.listen
-        print(f"{parser.prog}: cannot listen on {host}:{port}: {exc.strerror or exc}", file=sys.stderr)  # fmt: skip
+        why = os.strerror(exc.errno).lower() if exc.errno else str(exc)
+        print(f"{parser.prog}: cannot listen on {host}:{port}: {why}", file=sys.stderr)
         return 1
     host, port = proxy.address
     print(f"listening on {host}:{port} -> {args.target[0]}:{args.target[1]}; {faults}", flush=True)
