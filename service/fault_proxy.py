@@ -13,7 +13,8 @@ Faults (``Faults``; ``proxy.set(**changes)`` changes some, ``proxy.clear()`` rem
 
 * ``down``: the link is down. The listening socket is closed, so a new connection is refused
   (the client's connect fails at once), and every open connection is cut. Back up, the proxy
-  listens on the same port again.
+  listens on the same port again (``set`` raises ``OSError`` and the link stays down if
+  another program took the port meanwhile).
 * ``drop_request``, ``drop_response``: probabilities per exchange (a request and its answer;
   a connection with keep-alive carries several). A dropped request is cut after a uniformly
   random number of its bytes: the server receives its head, part of the body or nothing, never
@@ -538,8 +539,12 @@ class FaultProxy:
                 link.cut("down", max(link.exchange, 0), 0)
             ended = [link.handler for link in links if link.handler is not None]
             await asyncio.gather(*ended, return_exceptions=True)  # counted as ended on return
-        elif not faults.down and old.down and self._server is None:
-            await self._listen_now(self.address)
+        elif not faults.down and self._server is None and not self._stopping.is_set():
+            try:
+                await self._listen_now(self.address)
+            except OSError:  # the port was taken meanwhile: still down, and the caller hears it
+                self._faults = dataclasses.replace(faults, down=True)
+                raise
         if faults.blackhole:
             self._clear.clear()
         else:

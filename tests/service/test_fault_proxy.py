@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -175,6 +176,16 @@ def test_a_link_down_refuses_and_cuts_then_comes_back(shore: _Shore, proxy: Faul
             httpx.get(proxy.url + "/ping", timeout=2.0)
         proxy.set(down=False)  # listening again on the same port
         assert client.get("/ping").status_code == 200
+
+
+def test_coming_up_on_a_port_taken_meanwhile_stays_down(proxy: FaultProxy) -> None:
+    proxy.set(down=True)
+    with socket.create_server(proxy.address):  # another program took the port
+        with pytest.raises(OSError):
+            proxy.set(down=False)
+        assert proxy.faults.down
+    proxy.set(down=False)
+    assert httpx.get(proxy.url + "/ping", timeout=2.0).status_code == 200
 
 
 def test_delay_and_bandwidth_are_added(proxy: FaultProxy) -> None:
