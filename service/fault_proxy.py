@@ -57,6 +57,7 @@ import dataclasses
 import os
 import random
 import re
+import signal
 import sys
 import threading
 import time
@@ -634,6 +635,10 @@ def _format_stats(stats: Stats) -> str:
             f"target_failed={stats.upstream_failed} cuts: {cuts}")  # fmt: skip
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m service.fault_proxy``: a bad link in front of a shore service, until Ctrl-C."""
     parser = _Parser(
@@ -711,6 +716,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         why = os.strerror(exc.errno).lower() if exc.errno else str(exc)
         print(f"{parser.prog}: cannot listen on {host}:{port}: {why}", file=sys.stderr)
         return 1
+    if threading.current_thread() is threading.main_thread():  # kill: as Ctrl-C, counters printed
+        signal.signal(signal.SIGTERM, _interrupt)
     host, port = proxy.address
     print(f"listening on {host}:{port} -> {args.target[0]}:{args.target[1]}; {faults}", flush=True)
     try:
