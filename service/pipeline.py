@@ -24,7 +24,8 @@ import numpy as np
 from recal.detect.floor import NoiseFloor, NoiseFloorEstimator
 from recal.detect.rest import REST_REASONS, RestReference, rest_filter
 from recal.detect.slews import SlewTracker
-from recal.detect.static import DetectorConfig, StaticDetector
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector
 from recal.detect.windows import Window, windows_to_columns
 from recal.errors import RecalInputError
 from service.config import Settings
