@@ -327,7 +327,7 @@ def slews_path(positions: Path | str) -> Path:
 
 def _write_slews(path: Path, recording, windows, rate_hz: float | None) -> None:
     """Pass 3: the gyro samples between consecutive windows, as recal.detect.slews increments."""
-    from recal.detect.slews import SlewCollector
+    from recal.detect.slew_collect import SlewCollector
     from service.cli.common import atomic_write
 
     if not rate_hz:
