@@ -13,9 +13,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from recal.detect.quaternions import quat_from_rotvec, quat_multiply
+from recal.detect.quaternions import quat_conjugate, quat_from_rotvec, quat_multiply
 from recal.detect.slew_data import Slews
-from recal.detect.slew_rotation import DEG_H_TO_RAD_S, slew_rotations
+from recal.detect.slew_rotation import angle_random_walk_var, picked_rotations
 from recal.model.reference import OMEGA_IE_DEG_H, OMEGA_IE_RAD_S
 
 # ---- closed turns ------------------------------------------------------------------------------
@@ -306,15 +306,9 @@ def closure_residuals(
     vertical after k whole turns (the heading misclosure) less the turn's target (the Earth-rate
     headings' change for a checked turn, 0 for a declared one), Earth's turn over the slew taken
     out as in :func:`rotation_residuals` with ``earth_rate``."""
-    pick = turns.index
-    sub = slews.subset(pick)
-    g = gain if gain.shape[1] == 1 else gain[:, pick]
-    o = offset if offset.shape[1] == 1 else offset[:, pick]
-    z = None if zero_rate is None else np.asarray(zero_rate)[pick]
-    q, rest = slew_rotations(sub, g, A, o, z)
+    sub, q, rest = picked_rotations(slews, turns.index, gain, A, offset, zero_rate)
     if earth_rate:
-        conj = quat_from_rotvec(rest * sub.duration_s[None, :, None])
-        conj = conj * np.array([1.0, -1.0, -1.0, -1.0])
+        conj = quat_conjugate(quat_from_rotvec(rest * sub.duration_s[None, :, None]))
         q = quat_multiply(conj, q)
     q = q * np.sign(q[..., :1] + 1e-300)  # whole turns: q = -1 is no rotation
     r = np.einsum("psi,si->ps", 2.0 * q[..., 1:], turns.axis)
@@ -328,10 +322,8 @@ def closure_sigma(
     check's, or the declared one), the gyro's angle random walk over the slew (per-sample std in
     deg/h, (M, 3)) and, when Earth's turn is left in, its vertical part at most Omega T."""
     pick = turns.index
-    i, j = slews.first[pick], slews.second[pick]
-    dt, n, T = slews.period_s, slews.samples[pick], slews.duration_s[pick]
-    s_rate = 0.5 * (np.mean(gyro_std_in[i] ** 2, axis=1) + np.mean(gyro_std_in[j] ** 2, axis=1))
-    var = (DEG_H_TO_RAD_S * dt) ** 2 * s_rate * n + turns.sigma_rad**2
+    T = slews.duration_s[pick]
+    var = angle_random_walk_var(slews, gyro_std_in, pick) + turns.sigma_rad**2
     if not earth_rate:
         var = var + (OMEGA_IE_RAD_S * T) ** 2 / 3.0
     return np.sqrt(var)

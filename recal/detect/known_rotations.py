@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from recal.detect.quaternions import quat_from_rotvec, quat_multiply
+from recal.detect.quaternions import quat_conjugate, quat_from_rotvec, quat_multiply
 from recal.detect.slew_data import Slews
-from recal.detect.slew_rotation import DEG_H_TO_RAD_S, slew_rotations
+from recal.detect.slew_rotation import DEG_H_TO_RAD_S, angle_random_walk_var, picked_rotations
 from recal.errors import RecalInputError
 from recal.model.reference import OMEGA_IE_RAD_S
 
@@ -110,16 +110,11 @@ def rotation_residuals(
     ``slews.first``; the model arrays are those of :func:`slew_rotations` for all the slews.
     """
     pick = np.searchsorted(slews.first, known.slew)
-    sub = slews.subset(pick)
-    g = gain if gain.shape[1] == 1 else gain[:, pick]
-    o = offset if offset.shape[1] == 1 else offset[:, pick]
-    z = None if zero_rate is None else np.asarray(zero_rate)[pick]
-    q, rest = slew_rotations(sub, g, A, o, z)
+    sub, q, rest = picked_rotations(slews, pick, gain, A, offset, zero_rate)
     q_cmd = quat_from_rotvec(known.rotvec)[None]  # (1, K, 4)
     if earth_rate:
         q_cmd = quat_multiply(quat_from_rotvec(rest * sub.duration_s[None, :, None]), q_cmd)
-    conj = q_cmd * np.array([1.0, -1.0, -1.0, -1.0])
-    d = quat_multiply(conj, q)
+    d = quat_multiply(quat_conjugate(q_cmd), q)
     d = d * np.sign(d[..., :1] + 1e-300)  # the short way round
     return (2.0 * d[..., 1:]).reshape(q.shape[0], -1)
 
@@ -135,10 +130,8 @@ def rotation_sigma(
     the slew, the commanded rotation's own sigma and the Earth-rate term (its noise when taken
     out, the whole turn Omega T / sqrt(3) per component when left in)."""
     pick = np.searchsorted(slews.first, known.slew)
-    i, j = slews.first[pick], slews.second[pick]
-    dt, n, T = slews.period_s, slews.samples[pick], slews.duration_s[pick]
-    s_rate = 0.5 * (np.mean(gyro_std_in[i] ** 2, axis=1) + np.mean(gyro_std_in[j] ** 2, axis=1))
-    var = (DEG_H_TO_RAD_S * dt) ** 2 * s_rate * n + known.sigma_rad**2
+    i, T = slews.first[pick], slews.duration_s[pick]
+    var = angle_random_walk_var(slews, gyro_std_in, pick) + known.sigma_rad**2
     if earth_rate and gyro_sem_in is not None:
         var = var + (DEG_H_TO_RAD_S * T) ** 2 * np.mean(gyro_sem_in[i] ** 2, axis=1)
     elif not earth_rate:

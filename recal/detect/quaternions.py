@@ -20,14 +20,23 @@ def cofactor3(M: np.ndarray) -> np.ndarray:
     return c
 
 
+def rotvec_factor(angle: np.ndarray) -> np.ndarray:
+    """sin(a/2)/a for rotation angles a (rad), with its series near 0: the vector part of the
+    unit quaternion of a rotation vector is the vector times this."""
+    small = angle < 1e-6
+    return np.where(small, 0.5 - angle**2 / 48, np.sin(0.5 * angle) / np.where(small, 1.0, angle))
+
+
 def quat_from_rotvec(phi: np.ndarray) -> np.ndarray:
     """Rotation vectors (..., 3), rad -> unit quaternions (..., 4) [w, x, y, z]."""
     angle = np.sqrt(np.einsum("...i,...i->...", phi, phi))
-    half = 0.5 * angle
-    # sin(a/2)/a, with its series near 0
-    small = angle < 1e-6
-    k = np.where(small, 0.5 - angle**2 / 48, np.sin(half) / np.where(small, 1.0, angle))
-    return np.concatenate([np.cos(half)[..., None], phi * k[..., None]], axis=-1)
+    k = rotvec_factor(angle)
+    return np.concatenate([np.cos(0.5 * angle)[..., None], phi * k[..., None]], axis=-1)
+
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """Conjugates q* of quaternions (..., 4): the inverse rotation of a unit quaternion."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 
 from recal.detect.quaternions import rodrigues, rotate_back
 from recal.detect.slew_data import Slews
-from recal.detect.slew_rotation import DEG_H_TO_RAD_S, slew_rotations
+from recal.detect.slew_rotation import DEG_H_TO_RAD_S, angle_random_walk_var, slew_rotations
 from recal.model.reference import OMEGA_IE_RAD_S
 
 #: Bound on P x slews x groups per batched evaluation (bounds the temporaries, ~25 MB each).
@@ -104,10 +104,8 @@ def slew_sigma(
     """
     if gyro_std_in is None or accel_sem_in is None:
         return None
-    i, j = slews.first, slews.second
-    dt, n, T = slews.period_s, slews.samples, slews.duration_s
-    s_rate = 0.5 * (np.mean(gyro_std_in[i] ** 2, axis=1) + np.mean(gyro_std_in[j] ** 2, axis=1))
-    var = (DEG_H_TO_RAD_S * dt) ** 2 * s_rate * n
+    i, j, T = slews.first, slews.second, slews.duration_s
+    var = angle_random_walk_var(slews, gyro_std_in)
     g1 = np.linalg.norm(f_first, axis=1)
     g2 = np.linalg.norm(f_second, axis=1)
     var = var + np.mean(accel_sem_in[i] ** 2, axis=1) / g1**2

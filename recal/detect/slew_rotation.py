@@ -10,7 +10,13 @@ import math
 
 import numpy as np
 
-from recal.detect.quaternions import _chain_components, cofactor3, quat_from_rotvec, quat_multiply
+from recal.detect.quaternions import (
+    _chain_components,
+    cofactor3,
+    quat_from_rotvec,
+    quat_multiply,
+    rotvec_factor,
+)
 from recal.detect.slew_data import Slews
 from recal.model.error_model import inv3
 
@@ -75,10 +81,39 @@ def slew_rotations(
     """
     phi, rest = _group_rotvecs(slews, gain, A, offset, zero_rate)
     angle = np.sqrt(np.einsum("psig,psig->psg", phi, phi))
-    small = angle < 1e-6
-    k = np.where(small, 0.5 - angle**2 / 48, np.sin(0.5 * angle) / np.where(small, 1.0, angle))
+    k = rotvec_factor(angle)
     w, x, y, z = _chain_components(np.cos(0.5 * angle), *(phi[:, :, i] * k for i in range(3)))
     return np.stack([w, x, y, z], axis=-1), rest
+
+
+def picked_rotations(
+    slews: Slews,
+    pick: np.ndarray,
+    gain: np.ndarray,
+    A: np.ndarray,
+    offset: np.ndarray,
+    zero_rate: np.ndarray | None = None,
+) -> tuple[Slews, np.ndarray, np.ndarray]:
+    """The slews at positions ``pick`` (K,), with their integrated rotations (P, K, 4) and rest
+    rates (P, K, 3), rad/s, from :func:`slew_rotations`; the model arrays are those for all the
+    slews (gain and offset per slew or shared, zero_rate (S, 3) or None)."""
+    sub = slews.subset(pick)
+    g = gain if gain.shape[1] == 1 else gain[:, pick]
+    o = offset if offset.shape[1] == 1 else offset[:, pick]
+    z = None if zero_rate is None else np.asarray(zero_rate)[pick]
+    q, rest = slew_rotations(sub, g, A, o, z)
+    return sub, q, rest
+
+
+def angle_random_walk_var(
+    slews: Slews, gyro_std_in: np.ndarray, pick: np.ndarray | slice = slice(None)
+) -> np.ndarray:
+    """Variance of the integrated angle per component, rad^2, of the slews at ``pick``: the
+    per-sample gyro std (deg/h, (M, 3) per window; mean of the slew's two windows and of the
+    axes) integrated over the slew's n samples, (u sigma dt)^2 n."""
+    i, j = slews.first[pick], slews.second[pick]
+    s_rate = 0.5 * (np.mean(gyro_std_in[i] ** 2, axis=1) + np.mean(gyro_std_in[j] ** 2, axis=1))
+    return (DEG_H_TO_RAD_S * slews.period_s) ** 2 * s_rate * slews.samples[pick]
 
 
 def integrated_rotvec(
