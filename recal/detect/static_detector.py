@@ -47,6 +47,8 @@ import numpy as np
 
 from recal.detect.floor import RATE_PROBE as _RATE_PROBE
 from recal.detect.floor import estimate_noise_floor
+from recal.detect.frames import SLICE_FRAMES as _SLICE
+from recal.detect.frames import frame_arrays
 from recal.detect.noise import allan_sums as _allan_sums
 from recal.detect.static_config import DetectorConfig
 from recal.detect.static_report import DetectionReport, DetectionResult
@@ -79,7 +81,6 @@ from recal.errors import RecalInputError
 #: a 0.6 s hold between turns of a FOG for about 0.75 of the accelerometer's run.
 GYRO_QUIET_SHARE = 0.5
 
-_SLICE = 1 << 16  # frames processed per internal step: bounds the temporaries
 _EPS = float(np.finfo(np.float64).eps)
 _FAULT_NAMES = {1: "invalid_status", 2: "sequence_gap"}
 
@@ -203,14 +204,8 @@ class StaticDetector:
         """Add frames (time in s, gyro and accel (N, 3)); return the windows that closed."""
         if self._finished:
             raise RecalInputError("the detector was flushed; start a new one for a new stream")
-        t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+        t, g, a = frame_arrays(time_s, gyro, accel)
         n = t.shape[0]
-        g = np.asarray(gyro, dtype=np.float64)
-        a = np.asarray(accel, dtype=np.float64)
-        if g.shape != (n, 3) or a.shape != (n, 3):
-            raise RecalInputError(
-                f"gyro and accel must have shape ({n}, 3) like time_s; got {g.shape} and {a.shape}"
-            )
         extra = {
             "temperature_c": temperature_c,
             "valid": valid,
