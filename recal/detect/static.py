@@ -11,7 +11,9 @@ of its own (issue 27):
 * :mod:`recal.detect.static_sums`: the buffer's row layout and the chunk-independent sums
   (moving variance, window sums, Allan block sums) the detector decides from;
 * :mod:`recal.detect.static_detector`: :class:`StaticDetector` (the streaming detector, with the
-  method described in its module docstring) and :func:`detect_static` (a whole recording).
+  method described in its module docstring) and :func:`detect_static` (a whole recording);
+* :mod:`recal.detect.static_accel_only`: per-triad stillness, the part of the detector that
+  keeps accelerometer-only windows, and :data:`GYRO_QUIET_SHARE`.
 
 The noise floor the thresholds follow is :mod:`recal.detect.floor`, the window table
 :mod:`recal.detect.windows`, the noise model :mod:`recal.detect.noise`.
@@ -23,8 +25,9 @@ from __future__ import annotations
 from recal.detect.floor import NoiseFloor as NoiseFloor
 from recal.detect.floor import default_window_s as default_window_s
 from recal.detect.floor import estimate_noise_floor as estimate_noise_floor
+from recal.detect.static_accel_only import GYRO_QUIET_SHARE
 from recal.detect.static_config import DEFAULT_MAX_GAP_FRAMES, DetectorConfig
-from recal.detect.static_detector import GYRO_QUIET_SHARE, StaticDetector, detect_static
+from recal.detect.static_detector import StaticDetector, detect_static
 from recal.detect.static_report import (
     MAX_LISTED_REJECTIONS,
     MAX_REJECTED_STRETCHES,
