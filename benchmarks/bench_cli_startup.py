@@ -26,7 +26,7 @@ from pathlib import Path
 
 CLI = [sys.executable, "-m", "service.cli.main"]
 HELP_TARGET_S = 0.3
-HEAVY = ("numpy", "scipy", "recal.solve.calibrate", "recal.detect.static", "drivers")
+HEAVY = ("numpy", "scipy", "recal.solve.calibrate", "recal.detect.static_detector", "drivers")
 
 
 def wall(cmd: list[str]) -> float:

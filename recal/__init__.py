@@ -58,9 +58,9 @@ _API = {
     "validate_terms": "recal.model.plugins",
     "hidden_plugin": "recal.model.plugins",
     # detection
-    "StaticDetector": "recal.detect.static",
-    "DetectorConfig": "recal.detect.static",
-    "detect_static": "recal.detect.static",
+    "StaticDetector": "recal.detect.static_detector",
+    "DetectorConfig": "recal.detect.static_config",
+    "detect_static": "recal.detect.static_detector",
     "windows_to_columns": "recal.detect.windows",
     # calibration
     "calibrate": "recal.solve.calibrate",

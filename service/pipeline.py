@@ -23,8 +23,9 @@ import numpy as np
 
 from recal.detect.floor import NoiseFloor, NoiseFloorEstimator
 from recal.detect.rest import REST_REASONS, RestReference, rest_filter
-from recal.detect.slews import SlewTracker
-from recal.detect.static import DetectorConfig, StaticDetector
+from recal.detect.slew_collect import SlewTracker
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector
 from recal.detect.windows import Window, windows_to_columns
 from recal.errors import RecalInputError
 from service.config import Settings

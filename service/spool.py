@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from recal.detect.slews import ReducedSlew
+from recal.detect.slew_collect import ReducedSlew
 from recal.errors import RecalInputError
 
 #: Version of the file layout; a file of another version is left alone (and reported).

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from recal.detect.slews import ReducedSlew, slews_from_reduced
+from recal.detect.slew_collect import ReducedSlew, slews_from_reduced
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions

@@ -14,7 +14,7 @@ import pytest
 
 # drivers.registry (the --format choices) is light; the parsers and decoders are not.
 DRIVERS_HEAVY = ("drivers.bulk", "drivers.decoder", "drivers.csv_log", "drivers.reader")
-HEAVY = ("numpy", "scipy", "recal.solve.calibrate", "recal.detect.static", "recal.model.positions", "tqdm",
+HEAVY = ("numpy", "scipy", "recal.solve.calibrate", "recal.detect.static_detector", "recal.model.positions", "tqdm",
          *DRIVERS_HEAVY)  # fmt: skip
 
 
@@ -47,7 +47,7 @@ def test_a_command_imports_only_what_it_needs(tmp_path):
     code = f"import service.cli.main as m\nassert m.main(['simulate', '-o', {str(pos)!r}]) == 0"
     loaded = modules_after(code)
     assert "numpy" in loaded and "recal.sim.simulate" in loaded
-    assert not {"scipy", "recal.solve.calibrate", "recal.detect.static"} & loaded
+    assert not {"scipy", "recal.solve.calibrate", "recal.detect.static_detector"} & loaded
     # only the input-error base (drivers.errors, which recal.errors subclasses) and the light
     # format registry (the --format choices), no reader
     assert {m for m in loaded if m.startswith("drivers.")} <= {"drivers.errors", "drivers.registry"}

@@ -9,9 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recal.detect.frames import SLICE_FRAMES as _SLICE
+from recal.detect.frames import frame_arrays
 from recal.errors import RecalInputError
 
-_SLICE = 1 << 16  # frames processed per internal step: bounds the temporaries
 #: Time steps the sample rate is derived from (the same for every chunking).
 RATE_PROBE = 1024
 
@@ -96,14 +97,8 @@ class NoiseFloorEstimator:
 
     def feed(self, time_s, gyro, accel, valid=None) -> None:
         """Add frames: time in s (N,), gyro and accel (N, 3), optional valid flags (N,)."""
-        t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+        t, g, a = frame_arrays(time_s, gyro, accel)
         n = t.shape[0]
-        g = np.asarray(gyro, dtype=np.float64)
-        a = np.asarray(accel, dtype=np.float64)
-        if g.shape != (n, 3) or a.shape != (n, 3):
-            raise RecalInputError(
-                f"gyro and accel must have shape ({n}, 3) like time_s; got {g.shape} and {a.shape}"
-            )
         ok = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
         if valid is not None:
             v = np.asarray(valid).reshape(-1)

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from recal.detect.floor import NoiseFloor
-from recal.detect.static import REJECT_REASONS, DetectionReport
+from recal.detect.static_report import REJECT_REASONS, DetectionReport
 from recal.detect.windows import Window
 from recal.report.plots import WINDOW, figure_svg, html_page, new_figure, time_unit
 

@@ -24,7 +24,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.signal import lfilter
 
-from recal.detect.slews import DEFAULT_GROUPS, Slews, build_slews
+from recal.detect.slew_data import DEFAULT_GROUPS, Slews
+from recal.detect.slew_groups import build_slews
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions

@@ -26,7 +26,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from recal.detect.slews import KnownRotations, Slews
+from recal.detect.known_rotations import KnownRotations
+from recal.detect.slew_data import Slews
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout

@@ -23,23 +23,19 @@ from functools import cached_property
 
 import numpy as np
 
-from recal.detect.slews import (
+from recal.detect.closed_turns import (
     ClosedTurns,
     HeadingCheck,
-    KnownRotations,
-    Slews,
     TurnCandidate,
     closed_turns_of,
     closure_residuals,
     closure_sigma,
-    horizontal_basis,
-    integrated_rotvec,
-    rotation_residuals,
-    rotation_sigma,
-    slew_residuals,
-    slew_sigma,
     turn_candidates,
 )
+from recal.detect.known_rotations import KnownRotations, rotation_residuals, rotation_sigma
+from recal.detect.slew_data import Slews
+from recal.detect.slew_gravity import horizontal_basis, slew_residuals, slew_sigma
+from recal.detect.slew_rotation import integrated_rotvec
 from recal.errors import RecalInputError
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.positions import GYRO_STD_COLUMNS, Positions

@@ -15,7 +15,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from recal.detect.slews import CHECKED, DEG_H_TO_RAD_S, Slews
+from recal.detect.closed_turns import CHECKED
+from recal.detect.slew_data import Slews
+from recal.detect.slew_rotation import DEG_H_TO_RAD_S
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.positions import Positions
 from recal.model.reference import OMEGA_IE_DEG_H

@@ -267,7 +267,7 @@ def load_slews(args: argparse.Namespace, positions=None):
     error with an explicit --slews). Nothing is announced as used here: whether the fit uses
     them is known only after it (:func:`announce_slews`)."""
 
-    from recal.detect.slews import Slews
+    from recal.detect.slew_data import Slews
     from recal.errors import RecalInputError
     from service.cli.common import load_positions, read_bytes
     from service.cli.positions import slews_path
@@ -336,7 +336,7 @@ def load_known_rotations(args: argparse.Namespace, slews):
     path = getattr(args, "known_rotations", None)
     if path is None:
         return None
-    from recal.detect.slews import KnownRotations
+    from recal.detect.known_rotations import KnownRotations
     from recal.errors import RecalInputError
     from service.cli.common import read_text
 

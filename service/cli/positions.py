@@ -327,7 +327,7 @@ def slews_path(positions: Path | str) -> Path:
 
 def _write_slews(path: Path, recording, windows, rate_hz: float | None) -> None:
     """Pass 3: the gyro samples between consecutive windows, as recal.detect.slews increments."""
-    from recal.detect.slews import SlewCollector
+    from recal.detect.slew_collect import SlewCollector
     from service.cli.common import atomic_write
 
     if not rate_hz:
@@ -356,7 +356,7 @@ def _has_thresholds(args: argparse.Namespace) -> bool:
 
 def _config(args: argparse.Namespace, recording, floor):
     """The detector's settings: what the user gave; recal.detect.static's defaults for the rest."""
-    from recal.detect.static import DetectorConfig
+    from recal.detect.static_config import DetectorConfig
 
     given = {
         "window_s": args.window,
@@ -467,7 +467,7 @@ def _learn_noise_floor(recording, args: argparse.Namespace):
 def _detect(recording, config, envelope=None):
     """Pass 2: stream the recording through the incremental detector (and into the report's
     envelope when one is given)."""
-    from recal.detect.static import StaticDetector
+    from recal.detect.static_detector import StaticDetector
 
     detector = StaticDetector(config, on_traces=None if envelope is None else envelope.on_traces)
     windows = []

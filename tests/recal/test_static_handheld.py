@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.detect import static
+from recal.detect import static_accel_only
 from recal.detect.floor import estimate_noise_floor
 from recal.detect.noise import pooled_standard_errors
 from recal.detect.static import (
@@ -98,7 +98,9 @@ def test_a_short_pose_with_moving_edges_is_not_taken_for_tremor(monkeypatch):
     res = detect_static(s.time_s, s.gyro_out, s.accel_out)
     assert res.report.accel_only_windows == 0
     assert res.report.rejected["too_short"] == 6
-    monkeypatch.setattr(static, "GYRO_QUIET_SHARE", 1.01)  # without the rule: one slips in
+    monkeypatch.setattr(
+        static_accel_only, "GYRO_QUIET_SHARE", 1.01
+    )  # without the rule: one slips in
     assert detect_static(s.time_s, s.gyro_out, s.accel_out).report.accel_only_windows == 1
 
 

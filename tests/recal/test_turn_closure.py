@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-import recal.detect.slews as slews_mod
+import recal.detect.closed_turns as closed_turns_mod
 from recal.detect.slews import CHECKED, DECLARED
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews
@@ -112,7 +112,7 @@ def test_a_345_degree_turn_is_not_taken_as_closed(turn_345, monkeypatch) -> None
         assert "closure" not in doc["residuals"]
     # the rule this replaces (any slew within 30 deg of a whole turn closed to 0.1 deg): the
     # 15 degrees go into the vertical gyro scale, tens of sigma off the truth
-    monkeypatch.setattr(slews_mod, "_heading_unseen", lambda check: "assumed")
+    monkeypatch.setattr(closed_turns_mod, "_heading_unseen", lambda check: "assumed")
     r = _fit(turn_345, declared=0.1)
     assert r.problem.closed_turns is not None
     err, sd = _scale_z(r, truth)
