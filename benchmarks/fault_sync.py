@@ -330,8 +330,10 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)  # fmt: skip
     finally:
         shore.drop()
-    print(f"\n{args.runs} runs in {time.monotonic() - t0:.0f} s; proxy: drop_request 0.15, "
-          "drop_response 0.15, delay 0.01 s a chunk, link down about 1.5 s every 5 s")
+    print(
+        f"\n{args.runs} runs in {time.monotonic() - t0:.0f} s; proxy: drop_request 0.15, "
+        "drop_response 0.15, delay 0.01 s a chunk, link down about 1.5 s every 5 s"
+    )
     print(f"{'kill -9':8s} {'runs':>5s} {'rows':>7s} {'missing':>8s} {'extra':>6s} "
           f"{'doubled':>8s} {'backlog':>8s} {'cut req':>8s} {'cut ans':>8s} {'outages':>8s} "
           f"{'failures':>9s}")  # fmt: skip
