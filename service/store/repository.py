@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from sqlalchemy.exc import ArgumentError, NoSuchModuleError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from recal.model.positions import Positions
-from service.store import schema
+from service.store import outbox, schema
 from service.store.codec import (
     as_utc,
     columns_of,
@@ -31,6 +32,7 @@ from service.store.codec import (
 )
 from service.store.engine import WRITE_OPTION, make_engine
 from service.store.errors import StoreError, UnknownSessionError, one_line
+from service.store.outbox import OutboxEntry
 from service.store.records import CalibrationRecord, SlewRecord
 from service.store.rows import (
     POSITION_COLUMNS,
@@ -61,6 +63,7 @@ class Store:
                 "postgresql+psycopg://user@host:5432/db"
             ) from None
         self.url = parsed.render_as_string(hide_password=True)
+        self._outbox_ready = False  # the schema has the outbox (checked at the first write)
         try:
             self._engine, self._lock = make_engine(parsed, connect_timeout_s)
         except (NoSuchModuleError, ImportError) as exc:
@@ -127,6 +130,7 @@ class Store:
             row = SessionRow(source=source, meta=dict(meta or {}))
             s.add(row)
             s.flush()
+            self._enqueue(s, "session", [row.id])
             return row.id
 
     def add_positions(
@@ -167,7 +171,11 @@ class Store:
             s.add_all(rows)
             s.flush()
             ids = [r.id for r in rows]
-            s.add_all(slew_rows(slews, ids, previous_id, period_s))
+            motion = slew_rows(slews, ids, previous_id, period_s)
+            s.add_all(motion)
+            s.flush()
+            self._enqueue(s, "window", ids)  # one INSERT for the batch
+            self._enqueue(s, "slew", [m.id for m in motion])
             if spool_key is not None:  # unique: a concurrent replay of it fails and rolls back
                 s.add(SpoolBatchRow(key=spool_key, session_id=session_id, position_ids=ids))
             return ids
@@ -266,6 +274,7 @@ class Store:
         with self._tx(write=True) as s:
             s.add(row)
             s.flush()
+            self._enqueue(s, "version", [row.id])
             return row.id
 
     def current(self) -> CalibrationRecord | None:
@@ -297,6 +306,7 @@ class Store:
             row = EventRow(kind=kind, message=message, data=None if data is None else dict(data))
             s.add(row)
             s.flush()
+            self._enqueue(s, "event", [row.id])
             return row.id
 
     def last_event(self, kind: str, **data: Any) -> dict[str, Any] | None:
@@ -399,6 +409,64 @@ class Store:
             item["created_at"] = as_utc(item["created_at"])
             item["reasons"] = list(item["reasons"] or [])
         return out
+
+    # ---- the outbox (fleet sync, docs/fleet.md) -------------------------------------------
+    def _enqueue(self, s: Session, kind: str, ids: Sequence[int]) -> None:
+        """Outbox rows for rows this transaction stores. A database not yet at the outbox's
+        schema version gets none: migrating it gives every stored row its outbox row."""
+        if not self._outbox_ready:
+            found = s.scalar(select(func.max(SchemaVersionRow.version)))
+            if found is None or found < outbox.SINCE_SCHEMA_VERSION:
+                return
+            self._outbox_ready = True  # schemas only move up under a running Store
+        outbox.enqueue(s, kind, ids)
+
+    def outbox(self, limit: int) -> list[OutboxEntry]:
+        """The ``limit`` oldest rows still to send to the shore."""
+        with self._tx() as s:
+            return outbox.head(s, limit)
+
+    def outbox_count(self) -> int:
+        """Rows still to send to the shore."""
+        with self._tx() as s:
+            return outbox.count(s)
+
+    def outbox_rows(self, entries: Sequence[OutboxEntry]) -> dict[tuple[str, int], dict[str, Any]]:
+        """The stored rows the outbox entries name, by ``(kind, id)`` (service.store.outbox.load;
+        a row no longer stored is absent)."""
+        with self._tx() as s:
+            return outbox.load(s, entries)
+
+    def sync_acknowledge(
+        self,
+        seqs: Sequence[int],
+        day: str | None = None,
+        sent_bytes: int = 0,
+        rows: int = 0,
+        contact: datetime | None = None,
+    ) -> int:
+        """Delete the outbox rows the shore acknowledged and count the batch's traffic on
+        ``day``, in one transaction; returns how many outbox rows were deleted."""
+        with self._tx(write=True) as s:
+            done = outbox.settle(s, seqs)
+            if day is not None:
+                outbox.add_traffic(s, day, sent_bytes, rows, contact)
+            return done
+
+    def sync_traffic_add(self, day: str, sent_bytes: int) -> None:
+        """Count bytes sent on ``day`` without an acknowledgement."""
+        with self._tx(write=True) as s:
+            outbox.add_traffic(s, day, sent_bytes)
+
+    def sync_traffic(self, since_day: str) -> list[dict[str, Any]]:
+        """The link's traffic per UTC day from ``since_day`` on (days with any), oldest first."""
+        with self._tx() as s:
+            return outbox.traffic(s, since_day)
+
+    def sync_last_contact(self) -> datetime | None:
+        """When the shore last answered (None: never)."""
+        with self._tx() as s:
+            return outbox.last_contact(s)
 
 
 def keyed(s: Session, spool_key: str) -> list[int]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import JSON, DateTime, Double, ForeignKey, LargeBinary, String, Text
+from sqlalchemy import JSON, BigInteger, DateTime, Double, ForeignKey, LargeBinary, String, Text
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 from recal.model.positions import CANONICAL_ORDER
@@ -150,6 +150,33 @@ class SpoolBatchRow(Base):
     session_id: Mapped[int] = mapped_column(ForeignKey("sessions.id"), index=True)
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
     position_ids: Mapped[list[Any]]
+
+
+class OutboxRow(Base):
+    """A stored row still to send to the shore (docs/fleet.md): written in the row's own
+    transaction, deleted once the shore acknowledged it (service.store.outbox)."""
+
+    __tablename__ = "outbox"
+    # the send order: SQLite must never hand out a sequence number again
+    __table_args__ = {"sqlite_autoincrement": True}
+
+    seq: Mapped[int] = mapped_column(primary_key=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    ref_id: Mapped[int]
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class SyncDayRow(Base):
+    """The link's traffic on one UTC day (``YYYY-MM-DD``): bytes sent (compressed, every
+    attempt), rows and batches acknowledged, and when the shore last answered."""
+
+    __tablename__ = "sync_days"
+
+    day: Mapped[str] = mapped_column(String(10), primary_key=True)
+    sent_bytes: Mapped[int] = mapped_column(BigInteger)
+    rows: Mapped[int]
+    batches: Mapped[int]
+    last_contact: Mapped[datetime | None]
 
 
 _missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
