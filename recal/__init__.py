@@ -9,6 +9,7 @@ objects, so every piece can be used from a notebook. The subpackages follow the 
     recal.diagnose  missing effects, drift of a unit, information of new windows
     recal.nav       what coefficients do to navigation (INS error model, free-inertial runs)
     recal.sim       simulated units and sessions
+    recal.fleet     what only a fleet knows: ageing per model (the fleet prior), outlier units
     recal.report    HTML and plot reports (only the command line and the service import it)
     recal.runtime   process-level concerns (allocator, worker processes)
 
@@ -73,6 +74,13 @@ _API = {
     "drift_test": "recal.diagnose.drift",
     "DriftConfig": "recal.diagnose.drift",
     "information_gain": "recal.diagnose.information",
+    # the fleet prior (issue 28)
+    "FleetPrior": "recal.fleet.prior",
+    "read_fleet_prior": "recal.fleet.prior",
+    "VersionTable": "recal.fleet.history",
+    "fleet_prior": "recal.fleet.compute",
+    "outlier_units": "recal.fleet.outliers",
+    "simulate_fleet": "recal.fleet.simulate",
     # simulators
     "simulate_positions": "recal.sim.simulate",
     "design_orientations": "recal.sim.simulate",

@@ -58,6 +58,7 @@ from pydantic_settings import (
 from recal.errors import RecalInputError
 
 T = TypeVar("T")
+S = TypeVar("S", bound=BaseSettings)
 
 #: Shortest ``[api] token`` accepted.
 MIN_TOKEN_LENGTH = 16
@@ -398,6 +399,12 @@ class GateSettings(Section):
     navigation_margin_nmi: float = Field(
         0.0, ge=0, description="tolerance of refuse_worse_navigation (nautical miles)"
     )
+    fleet_prior: str | None = Field(
+        None,
+        description="fleet prior JSON (recal.fleet_prior/N, from the shore's GET /fleet/prior): "
+        "its change over the months since the current version replaces the datasheet's typical "
+        "change in the jump limit and the held coefficients' 1-sigma (unset: no ageing allowed)",
+    )
 
 
 class ApiSettings(Section):
@@ -671,13 +678,22 @@ def _one_line(err: Any) -> str:
 def load_settings(path: str | os.PathLike[str] | None = None, **overrides: Any) -> Settings:
     """Settings from ``path`` (TOML), the environment and ``overrides``; bad input is a
     one-line :class:`RecalInputError` naming the field."""
-    cls: type[Settings] = Settings
+    return load_toml_settings(Settings, path, **overrides)
+
+
+def load_toml_settings(
+    settings_cls: type[S], path: str | os.PathLike[str] | None = None, **overrides: Any
+) -> S:
+    """``settings_cls`` (a :class:`BaseSettings` reading ``toml_file``, as :class:`Settings`
+    and the shore's ``service.fleet.config.ShoreSettings``) from ``path``, the environment and
+    ``overrides``; bad input is a one-line :class:`RecalInputError` naming the field."""
+    cls: type[S] = settings_cls
     if path is not None:
         p = Path(path)
         if not p.is_file():
             raise RecalInputError(f"config file {p} does not exist")
 
-        class FileSettings(Settings):
+        class FileSettings(settings_cls):  # type: ignore[valid-type,misc]
             model_config = SettingsConfigDict(toml_file=p)
 
         cls = FileSettings

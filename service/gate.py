@@ -50,6 +50,8 @@ def gate(
     impact: NavigationImpact | None = None,
     effects_check: Mapping[str, Any] | None = None,
     change_expected: str | None = None,
+    ageing: Mapping[str, float] | None = None,
+    ageing_source: str | None = None,
 ) -> GateDecision:
     """Accept or reject ``result`` against the current accepted record ``previous``.
 
@@ -60,6 +62,11 @@ def gate(
     ``change_expected``: why a jump beyond ``max_change_sigma`` is expected (the drift test
     declared a change at its configured false-alarm rate, and the fit uses only the windows
     since it); the jump is then a note, as with ``allow_jump``, and every other limit applies.
+    ``ageing``: flat name -> the 1-sigma change expected from ageing since ``previous`` (the
+    fleet prior's figure for the months of service between them, issue 28), added in
+    quadrature to both versions' 1-sigma; ``ageing_source`` names it in the reasons. Without it
+    the gate allows no ageing at all (the coefficients must agree within their measurement
+    errors).
     Rejected: ``reasons`` says every limit broken. Accepted: ``reasons`` holds notes.
     """
     cfg = config or GateConfig()
@@ -79,11 +86,12 @@ def gate(
     if previous is None:
         first = ["no accepted calibration yet: nothing to compare against"]
         return GateDecision(not problems, problems or first + allowed)
-    jumps = _jumps(names, values, estimated, sigma, previous)
+    jumps = _jumps(names, values, estimated, sigma, previous, ageing)
     limit = cfg.max_change_sigma
     moved = sorted(((n, s) for n, s in jumps if s > limit), key=lambda item: -item[1])
+    aged = f", ageing allowed: {ageing_source}" if ageing and ageing_source else ""
     lines = [
-        f"{n} moved {s:.1f} sigma from version {previous.version} (limit {limit:g})"
+        f"{n} moved {s:.1f} sigma from version {previous.version} (limit {limit:g}{aged})"
         for n, s in moved[:_MAX_LISTED]
     ]
     if len(moved) > _MAX_LISTED:
@@ -98,7 +106,7 @@ def gate(
         name, change = max(jumps, key=lambda item: item[1])
         notes.append(
             f"largest change from version {previous.version}: {name} {change:.1f} sigma "
-            f"(limit {limit:g})"
+            f"(limit {limit:g}{aged})"
         )
     if impact is not None and impact.from_version is not None:
         notes.append(impact.sentence())
@@ -192,8 +200,10 @@ def _jumps(
     estimated: Mapping[str, bool],
     sigma: Mapping[str, float],
     previous: CalibrationRecord,
+    ageing: Mapping[str, float] | None = None,
 ) -> list[tuple[str, float]]:
-    """(name, change in combined sigmas) for every estimated coefficient the previous has."""
+    """(name, change in combined sigmas) for every estimated coefficient the previous has;
+    the combined sigma includes ``ageing`` (flat name -> 1-sigma) where it is given."""
     doc = previous.document
     before = _flat_document(doc.get("coefficients") or {}, names)
     before_sigma = _flat_document(doc.get("uncertainty") or {}, names)
@@ -203,7 +213,9 @@ def _jumps(
         if not estimated[name] or old is None:
             continue  # held now, or absent before (e.g. the previous had no accel triad)
         # A coefficient held last time has no sigma of its own: only the new one counts.
-        combined = math.hypot(sigma[name], before_sigma.get(name) or 0.0)
+        aged = (ageing or {}).get(name)
+        aged = aged if aged is not None and math.isfinite(aged) else 0.0
+        combined = math.hypot(sigma[name], before_sigma.get(name) or 0.0, aged)
         if combined > 0:
             out.append((name, abs(values[name] - old) / combined))
     return out

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -82,8 +83,40 @@ def calibration_job(
 
         check = effects_check(result, options)
         document["effects_check"] = check
-    decision = gate(result, previous, GateConfig(**gate_settings), impact, check, change_expected)
+    ageing, label = fleet_ageing(result, options, previous)
+    if label is not None:
+        document["fleet_prior"] = {**options.fleet_prior.to_json_dict(brief=True),
+                                   "months": options.prior_age_months}  # fmt: skip
+    decision = gate(result, previous, GateConfig(**gate_settings), impact, check, change_expected,
+                    ageing, label)  # fmt: skip
     return JobOutcome(document, decision.accepted, list(decision.reasons))
+
+
+def months_since(previous: Any, now: datetime | None = None) -> float | None:
+    """Months of service (recal.fleet.history.MONTH_DAYS) since the accepted version
+    ``previous`` was stored; None without one."""
+    from recal.fleet.history import MONTH_DAYS
+
+    if previous is None or previous.created_at is None:
+        return None
+    then = previous.created_at
+    then = then if then.tzinfo is not None else then.replace(tzinfo=UTC)
+    days = ((now or datetime.now(UTC)) - then).total_seconds() / 86400.0
+    return max(days, 0.0) / MONTH_DAYS
+
+
+def fleet_ageing(
+    result: Any, options: CalibrationOptions, previous: Any
+) -> tuple[dict[str, float] | None, str | None]:
+    """The gate's ageing allowance (flat name -> 1-sigma change) from the fleet prior over
+    the months since ``previous``, and its label; (None, None) without a fleet prior."""
+    fleet, months = options.fleet_prior, options.prior_age_months
+    if fleet is None or months is None or previous is None:
+        return None, None
+    names = result.layout.names
+    change = fleet.typical_change(names, months, result.theta)
+    ageing = {n: float(c) for n, c in zip(names, change, strict=True) if np.isfinite(c)}
+    return ageing, f"{fleet.label()} over {months:.3g} months"
 
 
 def navigation_impact_of(result: Any, previous: Any, site: dict[str, Any]) -> Any:

@@ -26,7 +26,7 @@ from service.config import Settings
 from service.db import StoreError
 from service.events import Events
 from service.jobs import JobEnd, JobRunner
-from service.recalibration import JobOutcome, calibration_job
+from service.recalibration import JobOutcome, calibration_job, months_since
 from service.triggers import (
     Evaluation,
     accepted_coefficients,
@@ -238,6 +238,8 @@ class Scheduler:
                 latitude_deg=s.site.latitude_deg,
                 height_m=s.site.height_m,
                 prior=self._prior(previous),
+                fleet_prior=self._fleet_prior(),
+                prior_age_months=months_since(previous),
                 slews=slews,
                 turn_closure_sigma_deg=s.scheduler.turn_closure_deg,
                 wander=None if s.scheduler.wander == "none" else s.scheduler.wander,
@@ -384,6 +386,19 @@ class Scheduler:
         return self._runner.alive and self._policy_alive()
 
     # -- internals ------------------------------------------------------------------------
+    def _fleet_prior(self) -> Any:
+        """``[gate] fleet_prior``, read at every job (a new file from shore is used at the next
+        recalibration); a file that no longer reads refuses the job, naming it."""
+        path = self._settings.gate.fleet_prior
+        if path is None:
+            return None
+        from service.startup import read_fleet_prior_file
+
+        try:
+            return read_fleet_prior_file(path)
+        except RecalInputError as exc:
+            raise SchedulerRefused(str(exc)) from None
+
     def _prior(self, previous: Any) -> CoefficientSet | None:
         if previous is not None:
             # its uncertainty is what the coefficients held at it add to the new fit's

@@ -20,6 +20,8 @@ from service.config import Settings
 def check_startup(settings: Settings) -> None:
     """Raise :class:`RecalInputError` for the first setting that cannot work on this machine."""
     check_prior(settings.prior_path)
+    if settings.gate.fleet_prior is not None:
+        read_fleet_prior_file(settings.gate.fleet_prior)
     prepare_state_dir(settings)
     check_database(settings.database_url)
     check_api_port(settings.api.host, settings.api.port)
@@ -79,6 +81,31 @@ def read_prior(path: str) -> Any:
         return read_coefficients(text, source=path)
     except RecalInputError as exc:
         raise RecalInputError(f"prior_path: {exc}") from None
+
+
+def read_fleet_prior_file(path: str, setting: str = "[gate] fleet_prior") -> Any:
+    """A fleet prior file (:class:`recal.fleet.prior.FleetPrior`, issue 28; RecalInputError
+    naming the setting when it cannot be read, or its format is newer or foreign)."""
+    from recal.fleet.prior import read_fleet_prior
+
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecalInputError(f"{setting}: cannot read {path}: {exc}") from None
+    try:
+        return read_fleet_prior(text, source=path)
+    except RecalInputError as exc:
+        raise RecalInputError(f"{setting}: {exc}") from None
+
+
+def write_fleet_prior_file(path: str, prior: Any) -> None:
+    """Save a fleet prior as its versioned JSON file (docs/fleet.md), atomically."""
+    import json
+
+    target = Path(path)
+    tmp = target.with_name(target.name + ".tmp")
+    tmp.write_text(json.dumps(prior.to_json_dict(), indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, target)
 
 
 def check_database(url: str, timeout_s: float = 5.0) -> None:

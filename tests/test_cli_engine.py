@@ -215,3 +215,34 @@ def test_cli_method_list_matches_the_engine():
     from service.cli import calibrate as cli
 
     assert cli.METHODS == METHODS
+
+
+def test_calibrate_ages_the_held_coefficients_with_a_fleet_prior(tmp_path, capsys):
+    """``--fleet-prior FLEET.json --prior-age-months M`` with ``--prior``: the held accel
+    quadratic carries the fleet's change over M months (issue 28); a newer format is exit 2."""
+    import json
+
+    from recal.fleet.prior import CoefficientAgeing, FleetPrior
+    from recal.model.coefficients import CoefficientSet
+    from recal.sim.simulate import simulate_positions
+
+    truth = CoefficientSet.seed_truth()
+    positions = tmp_path / "p.csv"
+    positions.write_text(simulate_positions(truth, design="random", n_positions=6).to_csv_text())
+    prior = tmp_path / "prior.json"
+    prior.write_text(json.dumps(truth.to_json_dict()))
+    figure = {f"accel.quadratic.K2{a}": CoefficientAgeing(2e-5, 1e-6, False, 80, 900)
+              for a in "xyz"}  # fmt: skip
+    fleet = FleetPrior("KVH-1750", 4, "2026-11-27T00:00:00Z", figure)
+    path = tmp_path / "fleet.json"
+    path.write_text(json.dumps(fleet.to_json_dict()))
+    base = ["calibrate", str(positions), "--latitude", "45", "--prior", str(prior), "--json"]
+    assert main([*base, "--fleet-prior", str(path), "--prior-age-months", "9"]) == 0
+    held = json.loads(capsys.readouterr().out)["held_uncertainty"]
+    assert held["fleet_prior"]["version"] == 4 and held["fleet_prior"]["months"] == 9.0
+    assert "fleet prior KVH-1750 v4 over 9 months" in held["prior_sigma_source"]["accel.quadratic"]
+    assert main([*base, "--fleet-prior", str(path)]) == 2
+    assert "go together" in capsys.readouterr().err
+    path.write_text(json.dumps({**fleet.to_json_dict(), "format": "recal.fleet_prior/3"}))
+    assert main([*base, "--fleet-prior", str(path), "--prior-age-months", "9"]) == 2
+    assert "is newer than this recal reads" in capsys.readouterr().err

@@ -62,7 +62,8 @@ def test_debug_after_the_subcommand_shows_the_traceback(
 
 
 @pytest.mark.parametrize(
-    "command", ["demo", "serve", "db", "simulate", "positions", "record", "navigate", "predict"]
+    "command",
+    ["demo", "serve", "db", "fleet", "simulate", "positions", "record", "navigate", "predict"],
 )
 def test_every_option_has_a_help_text(command: str) -> None:
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))

@@ -41,6 +41,9 @@ PUBLIC_NAMES = {
     "calibrate", "CalibrationOptions", "CalibrationResult", "WanderModel", "TriadWander",
     # checking a calibration
     "diagnose", "drift_inputs", "drift_test", "DriftConfig", "information_gain",
+    # the fleet prior
+    "FleetPrior", "read_fleet_prior", "VersionTable", "fleet_prior", "outlier_units",
+    "simulate_fleet",
     # simulators
     "simulate_positions", "design_orientations", "NoiseSpec", "TemperatureSpec",
     "simulate_session", "simulate_handheld", "HandheldSpec",
@@ -73,6 +76,8 @@ SIGNATURES = {
                         ("height_m", 0.0), ("rate_hz", 100.0), ("noise", None),
                         ("temperature_c", 25.0), ("seed", 0)],
     "read_coefficients": [("data", REQUIRED), ("terms", None), ("source", "JSON")],
+    "fleet_prior": [("versions", REQUIRED), ("model", REQUIRED), ("version", 1),
+                    ("false_alarm", 0.01), ("created_at", None), ("metadata", None)],
     "detect_static": [("time_s", REQUIRED), ("gyro", REQUIRED), ("accel", REQUIRED),
                       ("temperature_c", None), ("valid", None), ("lost_before", None),
                       ("config", None, KW)],
@@ -88,7 +93,7 @@ FIELDS = {
         ("plugin_terms", ()), ("paper", False), ("polish", False), ("swarm_config", None),
         ("cycles", 4), ("indicator_threshold", None), ("t0_c", 25.0), ("slews", None),
         ("known_rotations", None), ("turn_closure_sigma_deg", 0.0), ("wander", None),
-        ("refuse_at_solution", True),
+        ("refuse_at_solution", True), ("fleet_prior", None), ("prior_age_months", None),
     ],
     # a plugin constructs its terms positionally: Term("gyro.x", "gyro", ("a",), ...)
     "Term": [

@@ -130,6 +130,12 @@ class CalibrationOptions:
     #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
     #: a missing effect can drag the baseline fit there, and the candidates must still be tried
     refuse_at_solution: bool = True
+    #: the fleet's ageing figures (:class:`recal.fleet.prior.FleetPrior`, issue 28): with
+    #: ``prior_age_months`` (months of service since the prior's calibration), a held
+    #: coefficient's 1-sigma adds the fleet's change over that time to the prior file's own, and
+    #: replaces the datasheet's typical change where the file has none
+    fleet_prior: Any = None
+    prior_age_months: float | None = None
 
 
 @dataclass

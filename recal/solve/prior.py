@@ -29,9 +29,14 @@ class HeldUncertainty(NamedTuple):
     sensor_class: str  # which defaults a data-derived prior used (recal.solve.consider)
     source: dict[str, str]  # term name -> where its prior sigma came from
     sigma: np.ndarray  # (D,) prior 1-sigma per parameter
+    #: the fleet prior that aged it (label, version, months), or None (issue 28)
+    fleet: dict[str, Any] | None = None
 
     def to_json_dict(self) -> dict[str, Any]:
-        return {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
+        out = {"sensor_class": self.sensor_class, "prior_sigma_source": dict(self.source)}
+        if self.fleet is not None:
+            out["fleet_prior"] = dict(self.fleet)
+        return out
 
     def bar(self, layout: ParameterLayout, typical: np.ndarray) -> np.ndarray:
         """(D,) the observability bar (recal.solve.observability.analyze ``bar``): a prior
@@ -107,4 +112,41 @@ def _prior_uncertainty(
     cls = sensor_class(positions, layout, theta0, MIN_EARTH_RATE_CONTRAST)
     given = opt.prior.uncertainty if opt.prior else None
     sigma, source = prior_sigma(layout, theta0, typical, given, cls, start_sigma)
-    return HeldUncertainty(cls, source, sigma)
+    fleet = getattr(opt, "fleet_prior", None)
+    months = getattr(opt, "prior_age_months", None)
+    if fleet is None or months is None or opt.prior is None:
+        return HeldUncertainty(cls, source, sigma)
+    sigma, source = aged_sigma(layout, theta0, sigma, source, fleet, months, given)
+    used = {"model": fleet.model, "version": fleet.version, "created_at": fleet.created_at,
+            "months": float(months)}  # fmt: skip
+    return HeldUncertainty(cls, source, sigma, used)
+
+
+def aged_sigma(
+    layout: ParameterLayout,
+    theta0: np.ndarray,
+    sigma: np.ndarray,
+    source: dict[str, str],
+    fleet: Any,
+    months: float,
+    given: Any = None,
+) -> tuple[np.ndarray, dict[str, str]]:
+    """A prior file's 1-sigma aged by the fleet prior over ``months`` of service (issue 28):
+    where the file states its 1-sigma (the accepted version's measurement error), the fleet's
+    change over the months is added in quadrature; where it has none (the datasheet's typical
+    change stood in), the fleet's change replaces it. ``given``: the file's uncertainty by term
+    (NaN where it has none). Coefficients the fleet has no figure for keep theirs."""
+    change = fleet.typical_change(layout.names, months, theta0)
+    out, src = sigma.copy(), dict(source)
+    what = f"fleet prior {fleet.model} v{fleet.version} over {months:.3g} months"
+    for name, sl in layout.term_slices().items():
+        c = change[sl]
+        ok = np.isfinite(c)
+        if not np.any(ok):
+            continue
+        own = None if given is None else given.get(name)
+        own = np.asarray(own, float) if own is not None else np.full(c.shape, np.nan)
+        stated = np.isfinite(own) if own.shape == c.shape else np.zeros(c.shape, bool)
+        out[sl] = np.where(ok, np.where(stated, np.hypot(out[sl], c), c), out[sl])
+        src[name] = f"{src.get(name)} + {what}" if np.any(stated & ok) else what
+    return out, src

@@ -10,7 +10,7 @@ import argparse
 import json
 import math
 import sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from recal.solve.calibrate import CalibrationOptions, CalibrationResult
@@ -53,6 +53,18 @@ def add_calibration_arguments(p: argparse.ArgumentParser) -> None:
         "--prior",
         metavar="COEFFS.json",
         help="previous calibration: the start, and the value of held coefficients",
+    )
+    p.add_argument(
+        "--fleet-prior",
+        metavar="FLEET.json",
+        help="fleet prior of the unit's model (recal.fleet_prior/N): held coefficients carry "
+        "its change over --prior-age-months besides the prior's own 1-sigma",
+    )
+    p.add_argument(
+        "--prior-age-months",
+        type=float,
+        metavar="M",
+        help="months of service since the --prior calibration (with --fleet-prior)",
     )
     p.add_argument("--effects", metavar="+NAME,...", help="extra catalogue or plugin effects")
     p.add_argument(
@@ -180,7 +192,10 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
         extra = {"cf_mode": "literal"} if args.paper and args.method == "nafsa" else {}
         swarm = cfg_cls(fish=args.fish, iterations=args.iterations, **extra)
     slews = load_slews(args, positions)
+    fleet, months = _fleet_prior(args)
     return CalibrationOptions(
+        fleet_prior=fleet,
+        prior_age_months=months,
         slews=slews,
         known_rotations=load_known_rotations(args, slews),
         **_turn_closure(args),
@@ -211,6 +226,23 @@ def _turn_closure(args: argparse.Namespace) -> dict[str, float]:
     if not (value >= 0 and value < 180):
         raise RecalInputError(f"--turn-closure must be between 0 and 180 deg, not {value}")
     return {"turn_closure_sigma_deg": float(value)}
+
+
+def _fleet_prior(args: argparse.Namespace) -> tuple[Any, float | None]:
+    """``--fleet-prior`` read and checked (format first), with ``--prior-age-months``."""
+    from recal.errors import RecalInputError
+    from recal.fleet.prior import read_fleet_prior
+    from service.cli.common import read_text
+
+    path, months = getattr(args, "fleet_prior", None), getattr(args, "prior_age_months", None)
+    if path is None and months is None:
+        return None, None
+    if path is None or months is None or not getattr(args, "prior", None):
+        raise RecalInputError("--fleet-prior and --prior-age-months go together, with --prior "
+                              "(the calibration the months are counted from)")  # fmt: skip
+    if not months >= 0:
+        raise RecalInputError(f"--prior-age-months must be >= 0, not {months:g}")
+    return read_fleet_prior(read_text(path, "fleet prior"), source=str(path)), months
 
 
 def _check_prior_plugins(prior, terms: dict, path: str) -> None:

@@ -32,6 +32,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "record",
     "serve",
     "db",
+    "fleet",
     "demo",
 )
 

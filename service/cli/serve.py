@@ -33,8 +33,20 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 class _SettingsHelpFormatter(argparse.HelpFormatter):
     """Fills in the settings listing and keeps its layout (argparse would rewrap it)."""
 
+    settings_cls: Any = None  # None: the daemon's (service.config.Settings)
+
     def add_text(self, text: str | None) -> None:
-        super().add_text(settings_help(self._width) if text == _SETTINGS else text)
+        if text == _SETTINGS:
+            text = settings_help(self._width, self._settings_cls())
+        super().add_text(text)
+
+    def _settings_cls(self) -> Any:
+        if isinstance(self.settings_cls, str):  # "module:Name", imported only for --help
+            import importlib
+
+            module, name = self.settings_cls.split(":")
+            return getattr(importlib.import_module(module), name)
+        return self.settings_cls
 
     def _fill_text(self, text: str, width: int, indent: str) -> str:
         if text.startswith(_HEADER):
@@ -42,22 +54,24 @@ class _SettingsHelpFormatter(argparse.HelpFormatter):
         return super()._fill_text(text, width, indent)
 
 
-def settings_help(width: int = 79) -> str:
+def settings_help(width: int = 79, settings_cls: Any = None) -> str:
     """Every setting of the TOML file, by section: key = default, allowed values, description;
-    read from the pydantic models of :mod:`service.config`."""
+    read from the pydantic models of :mod:`service.config` (or of ``settings_cls``, e.g. the
+    shore's)."""
     import textwrap
 
     from pydantic import BaseModel
 
     from service.config import Settings
 
+    settings_cls = settings_cls or Settings
     lines = textwrap.wrap(
         f"{_HEADER} (the TOML file; an environment variable RECAL_<SECTION>__<KEY> overrides "
         "a key, e.g. RECAL_SITE__LATITUDE_DEG=57.7 or RECAL_API__TOKEN; unset: no value):",
         width,
     ) + [""]
     sections = []
-    for key, info in Settings.model_fields.items():
+    for key, info in settings_cls.model_fields.items():
         if isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel):
             sections.append((key, info))
         else:
@@ -73,7 +87,8 @@ def _setting(key: str, info: Any, width: int) -> list[str]:
     import textwrap
 
     allowed = _allowed(info)
-    head = f"  {key} = {_toml(info.get_default(call_default_factory=True))}"
+    value = "required" if info.is_required() else _toml(info.get_default(call_default_factory=True))
+    head = f"  {key} = {value}"
     out = [head + (f"  ({allowed})" if allowed else "")]
     if info.description:
         # never break inside a hyphenated name or path (recal-spool/...)

@@ -1,16 +1,13 @@
 """Service test fixtures: Store URLs (SQLite file and a throwaway PostgreSQL database) and real
 calibration documents.
 
-PostgreSQL comes from RECAL_TEST_POSTGRES (default: the local trust-auth server's ``test``
-database); each test session creates its own ``recal_test_<random>`` database and drops it at
-the end. Unreachable PostgreSQL skips those tests, except under CI, where it fails them.
+The PostgreSQL fixtures (``postgres_url``, ``pg_database``, ``block_database``) are in
+tests/conftest.py, shared with tests/fleet.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import secrets
 import socket
 import tempfile
 import threading
@@ -20,87 +17,13 @@ from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
-import psycopg
 import pytest
-from psycopg import sql
 from sqlalchemy import create_engine, text
-from sqlalchemy.engine import make_url
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import CalibrationResult, calibrate
 from service.db import Base, CalibrationRecord, Store
-
-PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")
-
-
-def _admin() -> psycopg.Connection:
-    return psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=3)
-
-
-@pytest.fixture(scope="session")
-def postgres_url() -> Iterator[str]:
-    """SQLAlchemy URL of a fresh database, dropped after the session."""
-    try:
-        admin = _admin()
-    except psycopg.OperationalError as exc:
-        reason = f"PostgreSQL at {PG_ADMIN_URL} unreachable: {str(exc).splitlines()[0]}"
-        if os.environ.get("CI"):
-            pytest.fail(reason)
-        pytest.skip(reason)
-    name = f"recal_test_{secrets.token_hex(4)}"
-    with admin:
-        admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
-    url = make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg", database=name)
-    try:
-        yield url.render_as_string(hide_password=False)
-    finally:
-        with _admin() as admin:
-            admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(sql.Identifier(name)))
-
-
-@pytest.fixture
-def pg_database() -> Iterator[tuple[str, str]]:
-    """(name, SQLAlchemy URL) of a fresh PostgreSQL database for one test, dropped after it;
-    ``block_database`` can close it to connections (a database outage)."""
-    try:
-        admin = _admin()
-    except psycopg.OperationalError as exc:
-        if os.environ.get("CI"):
-            pytest.fail(f"PostgreSQL unreachable: {exc}")
-        pytest.skip(f"PostgreSQL unreachable: {exc}")
-    name = f"recal_outage_{secrets.token_hex(4)}"
-    with admin:
-        admin.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
-    url = make_url(PG_ADMIN_URL).set(drivername="postgresql+psycopg", database=name)
-    try:
-        yield name, url.render_as_string(hide_password=False)
-    finally:
-        with _admin() as admin:
-            admin.execute(
-                sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS true").format(sql.Identifier(name))
-            )
-            admin.execute(sql.SQL("DROP DATABASE {} WITH (FORCE)").format(sql.Identifier(name)))
-
-
-def _block_database(name: str, allow: bool) -> None:
-    """Close database ``name`` to connections (ending its sessions), or open it again."""
-    with _admin() as admin:
-        admin.execute(
-            sql.SQL("ALTER DATABASE {} ALLOW_CONNECTIONS {}").format(
-                sql.Identifier(name), sql.SQL("true" if allow else "false")
-            )
-        )
-        if not allow:
-            admin.execute(
-                "SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s",
-                (name,),
-            )
-
-
-@pytest.fixture
-def block_database() -> Callable[[str, bool], None]:
-    return _block_database
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

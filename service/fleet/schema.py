@@ -1,0 +1,126 @@
+"""The shore's tables (SQLAlchemy 2), on their own :class:`FleetBase`, apart from the vessel's.
+
+Every table is named ``fleet_*``, and the migrations keep their revision in
+``fleet_alembic_version``, so the shore may share a database with anything else. A vessel row
+is stored once per (unit, vessel row id): one table per kind, each with that unique key, the
+row's time (``at``), the vessel's document as JSON (``data``) and the columns the fleet
+queries filter on pulled out of it. Revisions under ``migrations/versions`` create these
+tables by hand; the test suite checks that they match.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    UniqueConstraint,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+#: Serial of a unit: letters, digits and ``.-_``, at most this long.
+MAX_SERIAL = 64
+
+
+class FleetBase(DeclarativeBase):
+    pass
+
+
+class UnitRow(FleetBase):
+    __tablename__ = "fleet_units"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    serial: Mapped[str] = mapped_column(String(MAX_SERIAL), unique=True)
+    model: Mapped[str | None] = mapped_column(String(64))
+    #: hex sha256 of the unit's token (the token itself is never stored)
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    last_contact: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+
+class _VesselRow:
+    """Columns every kind shares: the key (unit, vessel row id), the time, the document."""
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
+    unit_id: Mapped[int] = mapped_column(ForeignKey("fleet_units.id", ondelete="CASCADE"))
+    vessel_id: Mapped[int] = mapped_column(BigInteger)
+    at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    received_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    data: Mapped[dict] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
+
+
+def _key_and_time(name: str) -> tuple[UniqueConstraint, Index]:
+    """The key of a kind's table, and the index of the per-unit time queries."""
+    return (
+        UniqueConstraint("unit_id", "vessel_id", name=f"uq_{name}_key"),
+        Index(f"ix_{name}_unit_at", "unit_id", "at"),
+    )
+
+
+class SessionRow(_VesselRow, FleetBase):
+    __tablename__ = "fleet_sessions"
+    __table_args__ = _key_and_time(__tablename__)
+
+
+class WindowRow(_VesselRow, FleetBase):
+    __tablename__ = "fleet_windows"
+    __table_args__ = _key_and_time(__tablename__)
+
+
+class SlewRow(_VesselRow, FleetBase):
+    __tablename__ = "fleet_slews"
+    __table_args__ = _key_and_time(__tablename__)
+
+
+class VersionRow(_VesselRow, FleetBase):
+    """A calibration version; ``vessel_id`` is the vessel's version number, ``at`` its
+    ``created_at``."""
+
+    __tablename__ = "fleet_versions"
+    __table_args__ = (
+        *_key_and_time(__tablename__),
+        Index("ix_fleet_versions_accepted_at", "accepted", "at"),
+    )
+
+    accepted: Mapped[bool] = mapped_column(Boolean)
+    trigger: Mapped[str | None] = mapped_column(String(64))
+    method: Mapped[str | None] = mapped_column(String(64))
+
+
+class EventRow(_VesselRow, FleetBase):
+    __tablename__ = "fleet_events"
+    __table_args__ = (*_key_and_time(__tablename__), Index("ix_fleet_events_kind_at", "kind", "at"))
+
+    kind: Mapped[str] = mapped_column(String(64))
+
+
+class IngestRow(FleetBase):
+    """One acknowledged batch: what the link carried (bytes per day) and what it stored."""
+
+    __tablename__ = "fleet_ingest_log"
+    __table_args__ = (Index("ix_fleet_ingest_log_unit_at", "unit_id", "at"),)
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
+    unit_id: Mapped[int] = mapped_column(ForeignKey("fleet_units.id", ondelete="CASCADE"))
+    at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    compressed_bytes: Mapped[int] = mapped_column(Integer)
+    rows: Mapped[int] = mapped_column(Integer)
+    stored: Mapped[int] = mapped_column(Integer)
+
+
+#: The table of each kind of the wire format (docs/fleet.md).
+KINDS: dict[str, type[_VesselRow]] = {
+    "session": SessionRow,
+    "window": WindowRow,
+    "slew": SlewRow,
+    "version": VersionRow,
+    "event": EventRow,
+}

@@ -1,0 +1,432 @@
+"""The shore's repository: units and their tokens, batches stored once, the fleet queries.
+
+Like the vessel's :class:`service.db.Store`, every public call opens its own short-lived
+session in one transaction, so one :class:`FleetStore` is shared by the server's threads, and
+database failures surface as :class:`service.db.StoreError` with a one-line message.
+
+Delivery is at least once, storage once (docs/fleet.md): a batch goes in one transaction, each
+row an insert that does nothing when its key (unit, vessel row id) is already stored (ON
+CONFLICT DO NOTHING, SQLite and PostgreSQL). Concurrent batches of one unit take its unit row
+first (an UPDATE of ``last_contact``), so they run one after the other; rows are inserted in
+key order, so batches of different units never wait on each other in a cycle.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import re
+import secrets
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import AbstractContextManager, contextmanager, nullcontext
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event, func, select, text, update
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, SQLAlchemyError
+from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import StaticPool
+
+from service.db import StoreError, _as_utc, _dumps, _one_line, _sqlite_on_begin, _sqlite_on_connect
+from service.fleet.batch import Batch
+from service.fleet.schema import (
+    KINDS,
+    MAX_SERIAL,
+    EventRow,
+    IngestRow,
+    UnitRow,
+    VersionRow,
+    WindowRow,
+)
+
+#: A unit's serial: what ``recal fleet add-unit`` accepts.
+SERIAL = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_SERIAL - 1}}}")
+#: Rows per INSERT statement (SQLite allows 32766 bound values; a row binds 6 to 9).
+CHUNK_ROWS = 500
+#: Days of ingest log ``unit()`` sums into bytes per day.
+LINK_DAYS = 30
+#: Advisory lock key of the shore's migrations on PostgreSQL (the vessel's is 7310599).
+_MIGRATION_LOCK = 7310600
+
+
+class UnitExistsError(StoreError):
+    """``add_unit`` of a serial already registered (without ``rotate``)."""
+
+
+class UnknownUnitError(StoreError):
+    """A serial this shore does not know."""
+
+
+@dataclass(frozen=True)
+class Unit:
+    id: int
+    serial: str
+    model: str | None
+
+
+def token_hash(token: str) -> str:
+    """What the shore keeps of a token: its sha256, in hex."""
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def new_token() -> str:
+    return secrets.token_urlsafe(32)
+
+
+class FleetStore:
+    """Repository over one database URL (``postgresql+psycopg://...`` or ``sqlite:///FILE``)."""
+
+    def __init__(self, url: str, *, connect_timeout_s: float = 5.0) -> None:
+        try:
+            parsed = make_url(url)
+        except ArgumentError:
+            raise StoreError(
+                f"bad database URL {url!r}: expected e.g. postgresql+psycopg://user@host/fleet "
+                "or sqlite:///fleet.db"
+            ) from None
+        self.url = parsed.render_as_string(hide_password=True)
+        self._lock: AbstractContextManager[Any] = nullcontext()
+        try:
+            self._engine = self._make_engine(parsed, connect_timeout_s)
+        except (NoSuchModuleError, ImportError) as exc:
+            raise StoreError(f"cannot use database URL {self.url}: {_one_line(exc)}") from None
+        self._read = sessionmaker(self._engine, expire_on_commit=False)
+        self._write = sessionmaker(
+            self._engine.execution_options(recal_write=True), expire_on_commit=False
+        )
+
+    def _make_engine(self, url: Any, connect_timeout_s: float) -> Engine:
+        # the vessel Store's connection rules: SQLite in WAL, writers BEGIN IMMEDIATE
+        backend = url.get_backend_name()
+        if backend == "sqlite":
+            memory = url.database in (None, "", ":memory:")
+            args: dict[str, Any] = {"check_same_thread": False, "timeout": 30.0}
+            kw: dict[str, Any] = {"json_serializer": _dumps, "connect_args": args}
+            if memory:
+                self._lock = threading.RLock()
+                kw["poolclass"] = StaticPool
+            engine = create_engine(url, **kw)
+            event.listen(engine, "connect", _sqlite_on_connect(wal=not memory))
+            event.listen(engine, "begin", _sqlite_on_begin)
+            return engine
+        if backend != "postgresql":
+            raise StoreError(f"database URL {self.url}: the shore runs on PostgreSQL or SQLite")
+        return create_engine(
+            url,
+            connect_args={"connect_timeout": max(1, round(connect_timeout_s))},
+            pool_pre_ping=True,
+            json_serializer=_dumps,
+        )
+
+    def close(self) -> None:
+        self._engine.dispose()
+
+    @property
+    def dialect(self) -> str:
+        return self._engine.dialect.name
+
+    @contextmanager
+    def _tx(self, write: bool = False) -> Iterator[Session]:
+        maker = self._write if write else self._read
+        with self._lock:
+            try:
+                with maker.begin() as session:
+                    yield session
+            except StoreError:
+                raise
+            except SQLAlchemyError as exc:
+                raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+
+    # ---- schema -------------------------------------------------------------------------
+    def create_schema(self) -> None:
+        """Bring the shore's tables to this code's revision (idempotent, one transaction);
+        a database at a revision this code does not know is refused."""
+        from alembic import command
+        from alembic.util import CommandError
+
+        from service.fleet.migrations import alembic_config
+
+        try:
+            with (
+                self._lock,
+                self._engine.execution_options(recal_write=True).connect() as conn,
+                conn.begin(),
+            ):
+                if self.dialect == "postgresql":  # two shores starting at once: one migrates
+                    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _MIGRATION_LOCK})
+                self._require_known(conn)
+                command.upgrade(alembic_config(conn), "head")
+        except SQLAlchemyError as exc:
+            raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+        except CommandError as exc:
+            raise StoreError(f"database {self.url}: migration failed: {_one_line(exc)}") from exc
+
+    def schema_revision(self) -> str | None:
+        """The shore revision recorded (None before :meth:`create_schema`)."""
+        try:
+            with self._lock, self._engine.connect() as conn:
+                found = self._recorded(conn)
+        except SQLAlchemyError as exc:
+            raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+        return ",".join(found) or None
+
+    def _recorded(self, conn: Any) -> list[str]:
+        from sqlalchemy import inspect
+
+        from service.fleet.migrations import VERSION_TABLE
+
+        if not inspect(conn).has_table(VERSION_TABLE):
+            return []
+        return sorted(conn.execute(text(f"SELECT version_num FROM {VERSION_TABLE}")).scalars())
+
+    def _require_known(self, conn: Any) -> None:
+        from service.fleet.migrations import head, revisions
+
+        unknown = [r for r in self._recorded(conn) if r not in revisions()]
+        if unknown:
+            raise StoreError(
+                f"database {self.url} has shore schema revision {', '.join(unknown)}, newer "
+                f"than this code knows ({head()}): upgrade fog-recal"
+            )
+
+    # ---- units --------------------------------------------------------------------------
+    def add_unit(self, serial: str, model: str | None = None, *, rotate: bool = False) -> str:
+        """Register ``serial`` and return its new token (kept only as a hash). ``rotate``: a
+        registered unit gets a new token, the old one stops working (``model`` is updated
+        when given). :class:`UnitExistsError` for a registered serial without ``rotate``,
+        :class:`UnknownUnitError` for rotating an unknown one."""
+        if not SERIAL.fullmatch(serial):
+            raise StoreError(
+                f"serial {serial!r}: use 1 to {MAX_SERIAL} letters, digits, '.', '-' or '_' "
+                "(starting with a letter or digit)"
+            )
+        token = new_token()
+        try:
+            with self._tx(write=True) as s:
+                row = s.scalar(select(UnitRow).where(UnitRow.serial == serial))
+                if row is None and rotate:
+                    raise UnknownUnitError(f"unit {serial} is not registered: nothing to rotate")
+                if row is not None and not rotate:
+                    raise UnitExistsError(
+                        f"unit {serial} is already registered (--rotate issues a new token)"
+                    )
+                if row is None:
+                    row = UnitRow(serial=serial, created_at=datetime.now(UTC))
+                    s.add(row)
+                row.token_hash = token_hash(token)
+                if model is not None:
+                    row.model = model
+        except StoreError as exc:
+            if isinstance(exc.__cause__, IntegrityError):  # registered meanwhile
+                raise UnitExistsError(f"unit {serial} is already registered") from None
+            raise
+        return token
+
+    def unit_of_token(self, token: str) -> Unit | None:
+        """The unit whose token this is, or None."""
+        digest = token_hash(token)
+        with self._tx() as s:
+            row = s.scalar(select(UnitRow).where(UnitRow.token_hash == digest))
+        if row is None or not hmac.compare_digest(row.token_hash, digest):
+            return None
+        return Unit(row.id, row.serial, row.model)
+
+    def unit_by_serial(self, serial: str) -> Unit | None:
+        with self._tx() as s:
+            row = s.scalar(select(UnitRow).where(UnitRow.serial == serial))
+        return None if row is None else Unit(row.id, row.serial, row.model)
+
+    # ---- ingest -------------------------------------------------------------------------
+    def ingest(self, unit: Unit, batch: Batch, compressed_bytes: int) -> tuple[int, int]:
+        """Store ``batch`` of ``unit`` in one transaction: (rows stored, duplicates). Rows whose
+        key is stored already, in the database or earlier in the batch, change nothing."""
+        now = datetime.now(UTC)
+        insert = postgresql.insert if self.dialect == "postgresql" else sqlite.insert
+        by_kind: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in KINDS}
+        for r in batch.rows:
+            values = {"unit_id": unit.id, "vessel_id": r.id, "at": r.at, "received_at": now,
+                      "data": r.data, **r.columns}  # fmt: skip
+            by_kind[r.kind].setdefault(r.id, values)  # the first of a key repeated in the batch
+        stored = 0
+        with self._tx(write=True) as s:
+            # the unit's row first: one unit's batches take turns, whatever their rows
+            s.execute(update(UnitRow).where(UnitRow.id == unit.id).values(last_contact=now))
+            for kind, rows in by_kind.items():
+                table = KINDS[kind].__table__
+                ordered = [rows[k] for k in sorted(rows)]
+                for i in range(0, len(ordered), CHUNK_ROWS):
+                    statement = insert(table).values(ordered[i : i + CHUNK_ROWS])
+                    statement = statement.on_conflict_do_nothing(
+                        index_elements=["unit_id", "vessel_id"]
+                    ).returning(table.c.vessel_id)  # the rows inserted, not those ignored
+                    stored += len(s.connection().execute(statement).all())
+            s.add(IngestRow(unit_id=unit.id, at=now, compressed_bytes=compressed_bytes,
+                            rows=len(batch.rows), stored=stored))  # fmt: skip
+        return stored, len(batch.rows) - stored
+
+    # ---- queries ------------------------------------------------------------------------
+    def units(self, only: int | None = None) -> list[dict[str, Any]]:
+        """Every unit (or only the one of id ``only``), by serial: ``unit``, ``model``,
+        ``versions``, ``windows``, ``current_version``, ``last_contact``."""
+        versions = _count(VersionRow)
+        windows = _count(WindowRow)
+        current = (
+            select(VersionRow.unit_id, func.max(VersionRow.vessel_id).label("v"))
+            .where(VersionRow.accepted.is_(True))
+            .group_by(VersionRow.unit_id)
+            .subquery()
+        )
+        query = (
+            select(UnitRow, versions.c.n, windows.c.n, current.c.v)
+            .outerjoin(versions, versions.c.unit_id == UnitRow.id)
+            .outerjoin(windows, windows.c.unit_id == UnitRow.id)
+            .outerjoin(current, current.c.unit_id == UnitRow.id)
+            .order_by(UnitRow.serial)
+        )
+        if only is not None:
+            query = query.where(UnitRow.id == only)
+        with self._tx() as s:
+            rows = s.execute(query).all()
+        return [
+            {
+                "unit": u.serial,
+                "model": u.model,
+                "versions": nv or 0,
+                "windows": nw or 0,
+                "current_version": cv,
+                "last_contact": _time(u.last_contact),
+            }
+            for u, nv, nw, cv in rows
+        ]
+
+    def unit(self, unit: Unit, days: int = LINK_DAYS) -> dict[str, Any]:
+        """One unit with its link state: the :meth:`units` fields plus ``created_at``, rows
+        stored per kind, and per UTC day of the last ``days`` the batches, rows and
+        compressed bytes received."""
+        (out,) = self.units(only=unit.id)
+        since = datetime.now(UTC) - timedelta(days=days)
+        if self.dialect == "postgresql":
+            day = func.to_char(func.timezone("UTC", IngestRow.at), "YYYY-MM-DD")
+        else:
+            day = func.strftime("%Y-%m-%d", IngestRow.at)
+        link = (
+            select(
+                day.label("day"),
+                func.count(),
+                func.sum(IngestRow.rows),
+                func.sum(IngestRow.stored),
+                func.sum(IngestRow.compressed_bytes),
+            )
+            .where(IngestRow.unit_id == unit.id, IngestRow.at >= since)
+            .group_by(day)
+            .order_by(day)
+        )
+        with self._tx() as s:
+            created = s.scalar(select(UnitRow.created_at).where(UnitRow.id == unit.id))
+            stored = {kind: s.scalar(select(func.count()).where(table.unit_id == unit.id)) or 0
+                      for kind, table in KINDS.items()}  # fmt: skip
+            per_day = s.execute(link).all()
+        out["created_at"] = _time(created)
+        out["rows"] = stored
+        out["link"] = [
+            {"day": d, "batches": n, "rows": int(r or 0), "stored": int(st or 0),
+             "compressed_bytes": int(b or 0)}
+            for d, n, r, st, b in per_day
+        ]  # fmt: skip
+        return out
+
+    def rows(
+        self,
+        kind: str,
+        unit: Unit,
+        *,
+        since: datetime | None = None,
+        until: datetime | None = None,
+        after: int | None = None,
+        limit: int = 100,
+        event_kind: str | None = None,
+    ) -> list[dict[str, Any]]:
+        """One unit's rows of ``kind``, by vessel row id (oldest first): ``since`` <= time <
+        ``until``, vessel row id > ``after`` (the next page), at most ``limit``."""
+        table = KINDS[kind]
+        query = select(table).where(table.unit_id == unit.id)
+        query = _between(query, table, since, until)
+        if after is not None:
+            query = query.where(table.vessel_id > after)
+        if event_kind is not None:
+            query = query.where(EventRow.kind == event_kind)
+        query = query.order_by(table.vessel_id).limit(limit)
+        with self._tx() as s:
+            found = s.scalars(query).all()
+        return [_out(kind, r) for r in found]
+
+    def fleet_versions(
+        self,
+        *,
+        only: int | None = None,
+        model: str | None = None,
+        accepted: bool | None = None,
+        since: datetime | None = None,
+        until: datetime | None = None,
+        limit: int = 100,
+    ) -> list[dict[str, Any]]:
+        """Versions across the fleet (or of unit id ``only``), oldest first, each with its
+        ``unit`` and ``model``."""
+        query = select(VersionRow, UnitRow.serial, UnitRow.model).join(
+            UnitRow, UnitRow.id == VersionRow.unit_id
+        )
+        if only is not None:
+            query = query.where(VersionRow.unit_id == only)
+        if model is not None:
+            query = query.where(UnitRow.model == model)
+        if accepted is not None:
+            query = query.where(VersionRow.accepted.is_(accepted))
+        query = _between(query, VersionRow, since, until)
+        query = query.order_by(VersionRow.at, VersionRow.id).limit(limit)
+        with self._tx() as s:
+            found = s.execute(query).all()
+        return [{"unit": serial, "model": m, **_out("version", r)} for r, serial, m in found]
+
+
+def _count(table: Any) -> Any:
+    return select(table.unit_id, func.count().label("n")).group_by(table.unit_id).subquery()
+
+
+def _between(query: Any, table: Any, since: datetime | None, until: datetime | None) -> Any:
+    if since is not None:
+        query = query.where(table.at >= since.astimezone(UTC))
+    if until is not None:
+        query = query.where(table.at < until.astimezone(UTC))
+    return query
+
+
+def _time(value: datetime | None) -> str | None:
+    """ISO 8601 UTC with a Z, as the vessel writes times."""
+    if value is None:
+        return None
+    return _as_utc(value).isoformat().replace("+00:00", "Z")
+
+
+def _out(kind: str, row: Any) -> dict[str, Any]:
+    """A stored row as the API serves it."""
+    if kind == "version":
+        return {
+            "version": row.vessel_id,
+            "created_at": _time(row.at),
+            "accepted": row.accepted,
+            "trigger": row.trigger,
+            "method": row.method,
+            "received_at": _time(row.received_at),
+            "document": row.data,
+        }
+    out = {"id": row.vessel_id, "at": _time(row.at), "received_at": _time(row.received_at)}
+    if kind == "event":
+        out["kind"] = row.kind
+    return {**out, "data": row.data}
+
+
+__all__: Sequence[str] = ("FleetStore", "Unit", "UnitExistsError", "UnknownUnitError")
