@@ -172,7 +172,9 @@ class Shore:
 class Vessel:
     """One unit's ``recal serve`` on a replayed capture, syncing through ``link``."""
 
-    def __init__(self, folder: Path, capture: Path, serial: str, token: str, link: str) -> None:
+    def __init__(
+        self, folder: Path, capture: Path, serial: str, token: str, link: str, speed: float
+    ) -> None:
         folder.mkdir()
         self.folder = folder
         self.db = folder / "recal.db"
@@ -183,7 +185,7 @@ class Vessel:
             f'database_url = "sqlite:///{self.db}"\n'
             f'publish_path = "{folder / "coefficients.json"}"\n'
             f'spool_dir = "{folder / "spool"}"\n'
-            f'[device]\nurl = "replay://{capture}?speed={SPEED:g}&rate={RATE:g}"\n'
+            f'[device]\nurl = "replay://{capture}?speed={speed:g}&rate={RATE:g}"\n'
             f"rate_hz = {RATE:g}\n"
             "[site]\nlatitude_deg = 45.0\n"
             "[detector]\naccel_threshold = 1e-6\ngyro_threshold = 1e4\n"
@@ -240,11 +242,19 @@ class Vessel:
         return out, left
 
 
-def one_run(run: int, seed: int, root: Path, capture: Path, shore: Shore, tally: Tally) -> None:
+def one_run(
+    run: int,
+    victim: str,
+    seed: int,
+    root: Path,
+    capture: Path,
+    shore: Shore,
+    tally: Tally,
+    speed: float = SPEED,
+) -> None:
     from service.fault_proxy import FaultProxy, outage_schedule
 
     rng = random.Random(seed)
-    victim = VICTIMS[run % len(VICTIMS)]
     serial = f"FAULT-{seed}-{run}"
     token = shore.add_unit(serial)
     faults = {"drop_request": 0.15, "drop_response": 0.15, "delay_s": 0.01}
@@ -253,9 +263,9 @@ def one_run(run: int, seed: int, root: Path, capture: Path, shore: Shore, tally:
         schedule = outage_schedule(seed, duration_s=20.0, mean_up_s=5.0, mean_down_s=1.5)
         tally.outages += sum(1 for _, change in schedule if change.get("down"))
         proxy.play(schedule)
-        vessel = Vessel(root / serial, capture, serial, token, proxy.url)
+        vessel = Vessel(root / serial, capture, serial, token, proxy.url, speed)
         vessel.start()
-        time.sleep(rng.uniform(1.0, 8.0))  # mid-replay, mid-sync
+        time.sleep(rng.uniform(1.0, 1.0 + 210.0 / speed))  # mid-replay, mid-sync
         for side in ("vessel", "shore") if victim == "both" else (victim,):
             part = vessel if side == "vessel" else shore
             tally.failures += [f"run {run}: {side}: {m}" for m in part.kill()]
@@ -302,8 +312,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--victims", default=",".join(VICTIMS),
+                    help="what is killed, in turn (default vessel,shore,both)")  # fmt: skip
+    ap.add_argument("--speed", type=float, default=SPEED,
+                    help=f"replay speed of the 6-minute capture (default {SPEED:g})")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="also print the totals as one JSON line")
     args = ap.parse_args(argv)
+    victims = tuple(args.victims.split(","))
+    if not victims or not set(victims) <= set(VICTIMS):
+        ap.error(f"--victims: a comma-separated list of {', '.join(VICTIMS)}")
     from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth, session_to_kvh
 
@@ -312,16 +329,17 @@ def main(argv: list[str] | None = None) -> int:
                                window_s=12.0, slew_s=3.0, first_hold_s=12.0)  # fmt: skip
     capture = root / "capture.bin"
     capture.write_bytes(session_to_kvh(session, rng=1)[0])
-    tallies = {v: Tally() for v in VICTIMS}
+    tallies = {v: Tally() for v in victims}
     shore = Shore(root)
     t0 = time.monotonic()
     try:
         shore.start()
         for run in range(args.runs):
-            victim = VICTIMS[run % len(VICTIMS)]
+            victim = victims[run % len(victims)]
             t = time.monotonic()
             try:
-                one_run(run, args.seed * 1000 + run, root, capture, shore, tallies[victim])
+                one_run(run, victim, args.seed * 1000 + run, root, capture, shore, tallies[victim],
+                        args.speed)  # fmt: skip
             except Exception as exc:  # noqa: BLE001 - one run's failure is reported, not fatal
                 tallies[victim].failures.append(f"run {run}: could not run: {exc}")
             left = tallies[victim].failures
