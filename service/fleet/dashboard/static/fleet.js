@@ -49,7 +49,7 @@ async function getJSON(path) {
 function when(iso) { return iso ? iso.replace("T", " ").slice(0, 16) + " UTC" : "-"; }
 function bytesWord(n) {
   if (!isNum(n)) return "-";
-  return n >= 1048576 ? `${(n / 1048576).toFixed(1)} MiB` : n >= 1024 ? `${(n / 1024).toFixed(1)} KiB` : `${n} B`;
+  return n >= 1048576 ? `${(n / 1048576).toFixed(1)} MiB` : n >= 1024 ? `${(n / 1024).toFixed(1)} KiB` : `${Math.round(n)} B`;
 }
 
 // ---- coefficients (the vessel page's flat names and display units) ----------------------------
