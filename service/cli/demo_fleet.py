@@ -103,9 +103,10 @@ def run_fleet(args: argparse.Namespace) -> int:
         bound = server.servers[0].sockets[0].getsockname()[1]
         shore = f"http://127.0.0.1:{bound}"
         _say(f"recal demo --fleet: shore service at {shore} on {settings.database_url}")
-        for v in VESSELS:
+        for v in VESSELS:  # one after the other; each keeps syncing while the next sails
             token = store.add_unit(v.serial, v.model)
-            services.append(_run_vessel(folder, v, shore, token, args.latitude))
+            services.append(_start_vessel(folder, v, shore, token, args.latitude))
+            _finish_vessel(v, services[-1])
         drained = _drain(services)
         counts = {
             v.serial: vessel_counts(s.settings.database_url)
@@ -133,34 +134,38 @@ def run_fleet(args: argparse.Namespace) -> int:
         store.close()
 
 
-def _run_vessel(folder: Path, v: Vessel, shore: str, token: str, latitude: float) -> Any:
-    """One vessel's daemon on its capture, syncing to ``shore``; returned still running (its
-    sync thread drains the outbox)."""
+def _start_vessel(folder: Path, v: Vessel, shore: str, token: str, latitude: float) -> Any:
+    """One vessel's daemon on its capture, syncing to ``shore``: reading and sending."""
     from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
     from service.daemon import build_service
 
-    t0 = time.monotonic()
     capture = folder / f"{v.serial}.bin"
-    data = _capture(v, capture, latitude)
-    db = folder / f"{v.serial}.db"
+    size = _capture(v, capture, latitude)
     settings = Settings(
-        database_url=f"sqlite:///{db}",
+        database_url=f"sqlite:///{folder / f'{v.serial}.db'}",
         publish_path=str(folder / f"{v.serial}.json"),
         device=DeviceSettings(
             url=f"replay://{capture}?speed=max&rate={RATE_HZ:g}", rate_hz=RATE_HZ
         ),  # fmt: skip
         site={"latitude_deg": latitude},
         detector=DetectorSettings(init_still_s=20.0, min_duration_s=5.0, edge_trim_s=1.0),
-        scheduler=SchedulerSettings(
-            min_positions=14, min_new_positions=10, sensor="both", method="lm"
-        ),  # fmt: skip
+        # one LM job at the end of the session (most of a job is its worker process starting);
+        # the ageing unit's second session: the drift test's job
+        scheduler=SchedulerSettings(min_positions=24, min_new_positions=24, method="lm"),
         api={"port": 0, "token": secrets.token_urlsafe(24)},
         sync={"url": shore, "unit": v.serial, "token": token, "interval_s": 0.5},
     )
     service = build_service(settings)
+    service.demo_bytes = size
     service.sync.start()
     service.reader.start()
-    while service.reader.health().counters.bytes_in < len(data):
+    return service
+
+
+def _finish_vessel(v: Vessel, service: Any) -> None:
+    """Wait for the end of the vessel's capture and its last job."""
+    t0 = time.monotonic()
+    while service.reader.health().counters.bytes_in < service.demo_bytes:
         time.sleep(0.05)
         if time.monotonic() - t0 > 120:
             raise RuntimeError(f"{v.serial}: replay did not finish within 120 s")
@@ -172,12 +177,10 @@ def _run_vessel(folder: Path, v: Vessel, shore: str, token: str, latitude: float
     verdicts = ", ".join(f"v{r.version} {r.trigger} {'accepted' if r.accepted else 'REJECTED'}"
                          for r in reversed(history)) or "no version"  # fmt: skip
     _say(f"recal demo --fleet: {v.serial} ({v.model}, seed {v.seed}): "
-         f"{service.store.count_positions()} windows, {verdicts} "
-         f"({time.monotonic() - t0:.1f} s)")  # fmt: skip
-    return service
+         f"{service.store.count_positions()} windows, {verdicts}")  # fmt: skip
 
 
-def _capture(v: Vessel, path: Path, latitude: float) -> bytes:
+def _capture(v: Vessel, path: Path, latitude: float) -> int:
     """The vessel's session as KVH bytes; an ageing unit has a second session after a jump."""
     import numpy as np
 
@@ -206,7 +209,7 @@ def _capture(v: Vessel, path: Path, latitude: float) -> bytes:
         more, _ = session_to_kvh(later, rng=v.seed + 1000)
         data += more
     path.write_bytes(data)
-    return data
+    return len(data)
 
 
 def _drain(services: list[Any]) -> bool:
