@@ -67,6 +67,10 @@ _ORIGIN = re.compile(
 )
 
 
+#: A unit's serial, as the shore registers it (docs/fleet.md, "Commands").
+_SERIAL = re.compile(r"[A-Za-z0-9._-]{1,64}")
+
+
 def is_loopback(host: str) -> bool:
     """True when ``host`` only accepts connections from this machine."""
     if host.lower() == "localhost":
@@ -503,10 +507,8 @@ class SyncSettings(Section):
     def _serial(cls, unit: str | None) -> str | None:
         if unit is None or unit == "":
             return None
-        if unit != unit.strip() or not unit.isprintable() or len(unit) > 128:
-            raise ValueError(
-                f"{unit!r}: a serial of printable characters without surrounding spaces"
-            )
+        if not _SERIAL.fullmatch(unit):  # what recal fleet add-unit registers
+            raise ValueError(f"{unit!r}: a serial is 1 to 64 letters, digits, '.', '-', '_'")
         return unit
 
     @field_validator("token")

@@ -82,6 +82,8 @@ def test_without_a_sync_section_there_is_no_sync_thread(tmp_path: Path, serve: A
         ('url = "shore.example"\nunit = "U1"\ntoken = "t0k"\n', "is not a URL like https://"),
         ('url = "https://s.example"\nunit = "U1"\ntoken = "t0k"\ninterval_s = 0\n',
          "sync.interval_s: Input should be greater than 0"),
+        ('url = "https://s.example"\nunit = "SN 42"\ntoken = "t0k"\n',
+         "sync.unit: 'SN 42': a serial is 1 to 64 letters, digits"),
         ('urls = "https://s.example"\n', "sync: unknown key urls (known: url, unit, token, "
          "interval_s)"),
     ],
