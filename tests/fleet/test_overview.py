@@ -192,3 +192,26 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
     assert found["outliers"][0]["p_value"] < 0.01 and found["outliers"][0]["statistic"] > 0
     assert shore.get(tokens[outlier], "/fleet/outliers", model="KVH-1750").json()["outliers"]
     assert shore.get(tokens[serial], "/fleet/outliers", model="KVH-1750").json()["outliers"] == []
+
+
+def test_the_sync_client_reports_its_backlog(tmp_path) -> None:
+    """Each batch says how many outbox rows the vessel still holds besides it (the overview's
+    backlog)."""
+    import gzip
+    import json
+
+    from service.db import Store
+    from service.sync.batch import build
+
+    store = Store(f"sqlite:///{tmp_path / 'vessel.db'}")
+    try:
+        store.create_schema()
+        store.add_session("test")
+        for i in range(4):
+            store.add_event("test", f"event {i}", None)
+        total = store.outbox_count()
+        batch = build(store, "SN-1", max_rows=2)
+        sent = json.loads(gzip.decompress(batch.body))
+        assert len(sent["rows"]) == 2 and sent["backlog"] == total - 2 == 3
+    finally:
+        store.close()
