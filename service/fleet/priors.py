@@ -50,15 +50,20 @@ class FleetPriors:
 
     def inputs(self, models: Iterable[str] | None = None) -> dict[str, str]:
         """The inputs' digest of every model (or of ``models``) that has units: one query."""
-        count = func.count(VersionRow.id)
-        query = (
-            select(UnitRow.model, UnitRow.serial, count, func.max(VersionRow.id))
-            .outerjoin(
-                VersionRow,
-                (VersionRow.unit_id == UnitRow.id) & VersionRow.accepted.is_(True),
+        accepted = (
+            select(
+                VersionRow.unit_id,
+                func.count().label("n"),
+                func.max(VersionRow.id).label("newest"),
             )
+            .where(VersionRow.accepted.is_(True))
+            .group_by(VersionRow.unit_id)
+            .subquery()
+        )  # grouped first: one pass over the versions, then a join per unit
+        query = (
+            select(UnitRow.model, UnitRow.serial, accepted.c.n, accepted.c.newest)
+            .outerjoin(accepted, accepted.c.unit_id == UnitRow.id)
             .where(UnitRow.model.is_not(None))
-            .group_by(UnitRow.model, UnitRow.serial)
             .order_by(UnitRow.model, UnitRow.serial)
         )
         if models is not None:
@@ -66,7 +71,7 @@ class FleetPriors:
         per_model: dict[str, list[Any]] = defaultdict(list)
         with self._store._tx() as s:
             for model, serial, n, newest in s.execute(query):
-                per_model[model].append([serial, n, newest])
+                per_model[model].append([serial, n or 0, newest])
         return {m: hashlib.sha256(json.dumps(rows).encode()).hexdigest()
                 for m, rows in per_model.items()}  # fmt: skip
 
