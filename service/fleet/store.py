@@ -265,7 +265,7 @@ class FleetStore:
                     ).returning(table.c.vessel_id)  # the rows inserted, not those ignored
                     stored += len(s.connection().execute(statement).all())
             s.add(IngestRow(unit_id=unit.id, at=now, compressed_bytes=compressed_bytes,
-                            rows=len(batch.rows), stored=stored))  # fmt: skip
+                            rows=len(batch.rows), stored=stored, backlog=batch.backlog))  # fmt: skip
         return stored, len(batch.rows) - stored
 
     # ---- queries ------------------------------------------------------------------------

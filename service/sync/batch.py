@@ -93,7 +93,10 @@ def build(
         batch.settles.append(entry.seq)
     batch.more = batch.more or len(entries) >= max_rows
     sent_at = iso_utc(now or datetime.now(UTC))
-    head = json.dumps({"format": FORMAT, "unit": unit, "sent_at": sent_at}, separators=(",", ":"))
+    # what the vessel still holds besides this batch: the shore shows the link's backlog
+    backlog = max(0, store.outbox_count() - len(batch.settles))
+    head = json.dumps({"format": FORMAT, "unit": unit, "sent_at": sent_at, "backlog": backlog},
+                      separators=(",", ":"))  # fmt: skip
     document = f'{head[:-1]},"rows":[{",".join(encoded)}]}}'.encode()
     batch.json_bytes = len(document)
     batch.body = gzip.compress(document, compresslevel=6, mtime=0)
