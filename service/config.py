@@ -484,6 +484,12 @@ class SyncSettings(Section):
         description="how often the outbox is offered when the link is up (s); a backlog is "
         "sent batch after batch without waiting",
     )
+    fleet_prior: bool = Field(
+        True,
+        description="fetch the fleet prior of this unit's model from the shore (at start, then "
+        "every 6 h the link is up) into state_dir/fleet_prior.json, which the gate uses unless "
+        "[gate] fleet_prior names a file",
+    )
 
     @field_validator("url")
     @classmethod
@@ -605,6 +611,22 @@ class Settings(BaseSettings):
         if self.publish_path is None:
             self.publish_path = str(state / "coefficients.json")
         return self
+
+    def fetched_fleet_prior(self) -> Path | None:
+        """Where the sync client keeps the fleet prior it fetched from shore
+        (``STATE_DIR/fleet_prior.json``); None without ``[sync]`` or with ``[sync]
+        fleet_prior = false``."""
+        if not (self.sync.enabled and self.sync.fleet_prior):
+            return None
+        return Path(self.state_dir or default_state_dir()) / "fleet_prior.json"
+
+    def gate_fleet_prior(self) -> str | None:
+        """The fleet prior file the gate uses: ``[gate] fleet_prior`` when set, else the one
+        fetched from shore once it exists (None: the gate allows no ageing)."""
+        if self.gate.fleet_prior is not None:
+            return self.gate.fleet_prior
+        fetched = self.fetched_fleet_prior()
+        return str(fetched) if fetched is not None and fetched.is_file() else None
 
     @classmethod
     def settings_customise_sources(

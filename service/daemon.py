@@ -348,7 +348,9 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
     if settings.sync.enabled:  # started with the reader (run_daemon); its own thread and link
         from service.sync import SyncThread
 
-        service.sync = SyncThread.from_settings(store, settings.sync, events)
+        service.sync = SyncThread.from_settings(
+            store, settings.sync, events, prior_path=settings.fetched_fleet_prior()
+        )
     if with_reader:
         from drivers import FrameReader
 

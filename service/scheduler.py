@@ -389,13 +389,15 @@ class Scheduler:
     def _fleet_prior(self) -> Any:
         """``[gate] fleet_prior``, read at every job (a new file from shore is used at the next
         recalibration); a file that no longer reads refuses the job, naming it."""
-        path = self._settings.gate.fleet_prior
+        path = self._settings.gate_fleet_prior()
         if path is None:
             return None
         from service.startup import read_fleet_prior_file
 
         try:
-            return read_fleet_prior_file(path)
+            setting = ("[gate] fleet_prior" if path == self._settings.gate.fleet_prior
+                       else "the fleet prior fetched from shore")  # fmt: skip
+            return read_fleet_prior_file(path, setting)
         except RecalInputError as exc:
             raise SchedulerRefused(str(exc)) from None
 

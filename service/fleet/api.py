@@ -345,10 +345,18 @@ def _fleet_routes(app: FastAPI) -> None:
         return fleet_overview(store, priors, only=None if who.unit is None else who.unit.id)
 
     @app.get("/fleet/prior", responses={404: {"description": "no prior for this model"}})
-    def prior(model: Model, who: CallerDep, priors: PriorsDep) -> JSONResponse:
+    def prior(who: CallerDep, priors: PriorsDep, model: Model | None = None) -> JSONResponse:
         """The model's current fleet prior, a ``recal.fleet_prior/1`` document: save it and
-        point the vessel's ``[gate] fleet_prior`` at it. Its ``version`` rises only when the
-        accepted versions behind it changed. A unit's token: its own model's."""
+        point the vessel's ``[gate] fleet_prior`` at it (a vessel with ``[sync]`` fetches it
+        itself). Its ``version`` rises only when the accepted versions behind it changed. A
+        unit's token: its own model's, which is the default ``model``."""
+        if model is None:
+            if who.unit is None:
+                raise HTTPException(422, "give ?model=MODEL (a unit's token defaults to its own)")
+            if who.unit.model is None:
+                raise HTTPException(404, f"unit {who.unit.serial} has no model registered "
+                                    "(recal fleet add-unit --rotate --model MODEL)")  # fmt: skip
+            model = who.unit.model
         return JSONResponse(_prior_of(priors, who, model))
 
     @app.get("/fleet/outliers", responses={404: {"description": "no prior for this model"}})

@@ -17,7 +17,7 @@ from urllib.parse import urlsplit
 #: The ingest endpoint under the shore service's base URL (docs/fleet.md).
 INGEST_PATH = "/fleet/ingest"
 #: Longest answer read from the shore, bytes (an answer is a few dozen).
-MAX_REPLY_BYTES = 64 * 1024
+MAX_REPLY_BYTES = 1024 * 1024
 
 
 class LinkError(Exception):
@@ -67,7 +67,8 @@ class Link:
         self._https = parts.scheme == "https"
         self._host = parts.hostname
         self._port = parts.port
-        self._path = parts.path.rstrip("/") + INGEST_PATH
+        self._base = parts.path.rstrip("/")
+        self._path = self._base + INGEST_PATH
         self._token = token
         self.connect_timeout_s = connect_timeout_s
         self.read_timeout_s = read_timeout_s
@@ -85,15 +86,24 @@ class Link:
     def post(self, body: bytes) -> Reply:
         """Send one gzip JSON batch; the shore's answer, whatever its status. LinkError when
         there is none."""
+        headers = (("Content-Type", "application/json"), ("Content-Encoding", "gzip"),
+                   ("Content-Length", str(len(body))))  # fmt: skip
+        return self._request("POST", self._path, headers, body)
+
+    def get(self, path: str) -> Reply:
+        """GET ``path`` (below the shore's base URL, e.g. ``/fleet/prior``) with the token."""
+        return self._request("GET", self._base + path, (), None)
+
+    def _request(
+        self, method: str, path: str, headers: tuple[tuple[str, str], ...], body: bytes | None
+    ) -> Reply:
         conn = self._connect()
         try:
-            conn.putrequest("POST", self._path, skip_accept_encoding=True)
+            conn.putrequest(method, path, skip_accept_encoding=True)
             for name, value in (
                 ("Authorization", f"Bearer {self._token}"),
-                ("Content-Type", "application/json"),
-                ("Content-Encoding", "gzip"),
+                *headers,
                 ("Accept", "application/json"),
-                ("Content-Length", str(len(body))),
                 ("Connection", "close"),
             ):
                 conn.putheader(name, value)

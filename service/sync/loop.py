@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import random
 import threading
+import time
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 from service.store.errors import StoreError
@@ -27,6 +30,12 @@ from service.sync.client import Link, LinkError, Reply
 from service.sync.stats import DOWN, REJECTED, UP, SyncStats, utc_day
 
 log = logging.getLogger("recal.sync")
+
+#: How often the fleet prior is fetched again while the link is up, s (its version changes
+#: when the shore holds new accepted versions of the model: weeks, not hours).
+PRIOR_EVERY_S = 6 * 3600.0
+#: After a failed fetch, s.
+PRIOR_RETRY_S = 600.0
 
 
 class SyncThread:
@@ -48,6 +57,8 @@ class SyncThread:
         backoff_base_s: float = 1.0,
         backoff_cap_s: float = 300.0,
         rejected_retry_s: float = 900.0,
+        prior_path: str | os.PathLike[str] | None = None,
+        prior_every_s: float = PRIOR_EVERY_S,
     ) -> None:
         self.store = store
         self.unit = unit
@@ -58,6 +69,10 @@ class SyncThread:
         self.backoff_base_s = backoff_base_s
         self.backoff_cap_s = backoff_cap_s
         self.rejected_retry_s = rejected_retry_s
+        #: where the fleet prior fetched from shore is kept (None: not fetched)
+        self.prior_path = None if prior_path is None else Path(prior_path)
+        self.prior_every_s = prior_every_s
+        self._prior_due = 0.0  # time.monotonic() of the next fetch: at once after start
         self.link = Link(url, token, connect_timeout_s=connect_timeout_s,
                          read_timeout_s=read_timeout_s)  # fmt: skip
         self.stats = SyncStats(url, unit)
@@ -139,6 +154,7 @@ class SyncThread:
             self.stats.note(f"database: {exc}")
             return self._backoff()
         if batch is None:
+            self._fetch_prior()
             return self.interval_s
         if not batch.rows:  # only rows no longer stored: nothing to send
             try:
@@ -200,6 +216,56 @@ class SyncThread:
             self.failures += 1
             return self.rejected_retry_s
         return self._failed(f"the shore answered {reply.status}: {detail}", batch, contact=now)
+
+    def _fetch_prior(self) -> None:
+        """The fleet prior of this unit's model, from ``GET /fleet/prior`` when due (the outbox
+        is empty and the link answers): saved to ``prior_path`` when its version or model is new,
+        with a ``fleet_prior`` event. A shore without one yet (404), or a link that fails, leaves
+        the file as it was until the next try (``prior_every_s``, 10 min after a failure)."""
+        if self.prior_path is None or time.monotonic() < self._prior_due:
+            return
+        self._prior_due = time.monotonic() + min(self.prior_every_s, PRIOR_RETRY_S)
+        try:
+            reply = self.link.get("/fleet/prior")
+        except LinkError as exc:
+            log.info("sync: fleet prior not fetched: %s", exc)
+            return
+        if reply.status == 404:
+            self._prior_due = time.monotonic() + self.prior_every_s
+            log.info("sync: the shore has no fleet prior for this unit yet: %s", reply.detail())
+            return
+        if reply.status != 200 or not isinstance(reply.body, dict):
+            log.warning("sync: fleet prior not fetched: the shore answered %d: %s",
+                        reply.status, reply.detail())  # fmt: skip
+            return
+        from recal.errors import RecalInputError
+        from recal.fleet.prior import read_fleet_prior
+        from service.startup import read_fleet_prior_file, write_fleet_prior_file
+
+        try:
+            prior = read_fleet_prior(reply.body, source=f"{self.link.url}/fleet/prior")
+        except RecalInputError as exc:
+            log.warning("sync: the shore's fleet prior is refused: %s", exc)
+            return
+        self._prior_due = time.monotonic() + self.prior_every_s
+        try:
+            held = read_fleet_prior_file(str(self.prior_path))
+        except RecalInputError:
+            held = None  # none yet, or unreadable: replaced
+        if held is not None and (held.model, held.version) == (prior.model, prior.version):
+            return
+        try:
+            write_fleet_prior_file(str(self.prior_path), prior)
+        except OSError as exc:
+            log.warning("sync: cannot save the fleet prior to %s: %s", self.prior_path, exc)
+            return
+        message = (f"fleet prior v{prior.version} of model {prior.model} received from shore: "
+                   f"the gate allows its ageing from the next recalibration")  # fmt: skip
+        if self.events is not None:
+            self.events.emit("fleet_prior", message, {"model": prior.model,
+                             "version": prior.version, "path": str(self.prior_path)})  # fmt: skip
+        else:
+            log.info("sync: %s", message)
 
     def _failed(self, why: str, batch: Batch, contact: datetime | None = None) -> float:
         self.stats.down(why, contact=contact)
