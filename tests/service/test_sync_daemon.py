@@ -85,7 +85,7 @@ def test_without_a_sync_section_there_is_no_sync_thread(tmp_path: Path, serve: A
         ('url = "https://s.example"\nunit = "SN 42"\ntoken = "t0k"\n',
          "sync.unit: 'SN 42': a serial is 1 to 64 letters, digits"),
         ('urls = "https://s.example"\n', "sync: unknown key urls (known: url, unit, token, "
-         "interval_s)"),
+         "interval_s, fleet_prior)"),
     ],
 )  # fmt: skip
 def test_bad_sync_settings_are_one_line(
