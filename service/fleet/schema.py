@@ -44,6 +44,11 @@ class UnitRow(FleetBase):
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     last_contact: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    #: kept by ingest (migration 0002), so the fleet's list reads no vessel rows
+    n_versions: Mapped[int] = mapped_column(Integer, server_default="0")
+    n_windows: Mapped[int] = mapped_column(BigInteger, server_default="0")
+    #: the newest accepted version stored
+    current_version: Mapped[int | None] = mapped_column(BigInteger)
 
 
 class _VesselRow:
