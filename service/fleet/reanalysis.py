@@ -173,8 +173,8 @@ def reanalyse(
     models = sorted({m or "" for _i, _s, m in listed})
     for m in models:
         members = [(uid, serial) for uid, serial, mm in listed if (mm or "") == m]
-        histories = {}
-        for uid, serial in members:
+        histories: dict[str, Any] = {}
+        for uid, serial in members if names else ():
             v = by_id[uid]["versions"]
             months = [t / 86400.0 / (365.25 / 12.0) for t, _c, _u in v]
             values = np.reshape([_flat(c, names) for _t, c, _u in v], (-1, len(names)))
@@ -183,7 +183,7 @@ def reanalyse(
         table = VersionTable.from_histories(names, histories)
         changes = table.changes()
         stat = dof = p = None
-        if len(changes):
+        if names and len(changes):
             prior = fleet_prior(changes, m or "unknown", false_alarm=false_alarm)
             rate, _sigma = prior.rates(names)
             stat, dof = unit_statistics(changes, np.nan_to_num(rate))
@@ -191,16 +191,16 @@ def reanalyse(
             priors[m] = {"changes": len(changes), "outliers": [o.unit for o in prior.outliers]}
         flagged = set(priors.get(m, {}).get("outliers", []))
         for uid, serial in members:
-            i = table.units.index(serial)
+            i = table.units.index(serial) if serial in table.units else -1
             r = by_id[uid]
             out_units.append({
                 "unit": serial,
                 "model": m or None,
                 "versions": len(r["versions"]),
                 "windows": r["windows"],
-                "statistic": None if stat is None else round(float(stat[i]), 3),
-                "dof": None if dof is None else int(dof[i]),
-                "p_value": None if p is None else _finite(float(p[i])),
+                "statistic": None if stat is None or i < 0 else round(float(stat[i]), 3),
+                "dof": None if dof is None or i < 0 else int(dof[i]),
+                "p_value": None if p is None or i < 0 else _finite(float(p[i])),
                 "outlier": serial in flagged,
                 "drift": r["drift"],
                 "drift_alarm": bool(r["drift"] and r["drift"].get("alarm")),
