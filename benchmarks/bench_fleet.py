@@ -409,9 +409,9 @@ def ingest_http(base: str, fleet: Fleet, units: list[UnitPlan]) -> IngestFigures
 
 # ---- bulk load (not the ingest figure) ------------------------------------------------------
 SECONDARY = {  # dropped during the bulk load, built after it
-    "fleet_windows": ["ix_fleet_windows_unit_at"],
-    "fleet_events": ["ix_fleet_events_unit_at", "ix_fleet_events_kind_at"],
-    "fleet_slews": ["ix_fleet_slews_unit_at"],
+    "fleet_windows": ["ix_fleet_windows_unit_at_id"],
+    "fleet_events": ["ix_fleet_events_unit_at_id", "ix_fleet_events_kind_at"],
+    "fleet_slews": ["ix_fleet_slews_unit_at_id"],
     "fleet_ingest_log": ["ix_fleet_ingest_log_unit_at"],
 }
 
@@ -571,7 +571,7 @@ def serve(url: str, folder: Path) -> Iterator[str]:
                              "--config", str(config)], env=env, stderr=subprocess.PIPE)  # fmt: skip
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 1800  # its migrations, on a loaded database
         while True:
             try:
                 if httpx.get(f"{base}/openapi.json", timeout=2).status_code == 200:

@@ -367,6 +367,16 @@ class FleetStore:
             query = query.where(EventRow.kind == event_kind)
         query = query.order_by(table.vessel_id).limit(limit)
         with self._tx() as s:
+            if since is not None:
+                # where the time range starts in id order (an index-only scan of (unit, at,
+                # vessel id)): the pages then start there, instead of reading the unit's older
+                # rows one by one only to drop them (0.9 s for a late `since`, migration 0003)
+                # (+ 0: PostgreSQL would turn a plain min() into the slow walk in id order)
+                first = select(func.min(table.vessel_id + 0)).where(table.unit_id == unit.id)
+                first = s.scalar(_between(first, table, since, until))
+                if first is None:
+                    return []
+                query = query.where(table.vessel_id >= first)
             found = s.scalars(query).all()
         return [_out(kind, r) for r in found]
 
