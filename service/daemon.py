@@ -5,7 +5,8 @@ the serial reader runs in its own thread and hands frames to the pipeline; calib
 a supervised worker process. Under systemd (``Type=notify``) the daemon reports READY=1 once it
 serves and pets the watchdog only while every part is alive: the reader thread, the detector
 (frames that arrive are processed), the job supervisor, the publisher (not closed), the HTTP
-server (its event loop runs) and the housekeeping loop itself. A dead part stops the petting,
+server (its event loop runs), the fleet sync thread (with ``[sync]``) and the housekeeping loop
+itself. A dead part stops the petting,
 is named in ``/health`` (``problems`` and ``service.dead_parts``) and in a ``STATUS=`` line to
 systemd, and systemd restarts the service once ``WatchdogSec`` has passed. A part that is alive
 but failing (device unplugged, database down, publish file unwritable) makes ``/health`` say
@@ -99,6 +100,8 @@ class Service:
     server: Any = None
     #: The thread between the reader and :attr:`ingest` (None without a reader).
     feeder: Any = None
+    #: The fleet sync thread (service.sync.SyncThread; None without a ``[sync]`` section).
+    sync: Any = None
     started: float = field(default_factory=time.monotonic)
     last_tick: float = field(default_factory=time.monotonic)
     last_sync: float = field(default_factory=time.monotonic)
@@ -120,6 +123,9 @@ class Service:
             dead["scheduler"] = "the job supervisor is not running"
         if self.publisher.closed:  # every /events stream has ended and none can start
             dead["publisher"] = "closed: no /events stream receives new versions"
+        if self.sync is not None and self.sync.started and not self.sync.alive:
+            if not self.sync.stopping:
+                dead["sync"] = "the fleet sync thread has stopped"
         api = self._api_dead()
         if api is not None:
             dead["api"] = api
@@ -157,6 +163,8 @@ class Service:
             out.append(f"spool: {self.ingest.spool_error}")
         if self.publisher.error is not None:
             out.append(f"publisher: {self.publisher.error}")
+        if self.sync is not None and self.sync.stats.state == "rejected":  # needs a person
+            out.append(f"sync: {self.sync.stats.last_error}")
         return out
 
     def alive(self) -> bool:
@@ -191,6 +199,7 @@ class Service:
                 "error": self.publisher.error,
             },
             "events_unstored": self.events.unstored,
+            "sync": self.sync_health(),
         }
         if self.reader is not None:
             h = self.reader.health()
@@ -207,6 +216,19 @@ class Service:
                 "counters": asdict(h.counters),
             }
         return out
+
+    def sync_health(self) -> dict[str, Any]:
+        """The ``sync`` block of ``/health``: the link's state, backlog (outbox rows; None
+        while the database does not answer) and traffic; ``state`` ``off`` without
+        ``[sync]``."""
+        from service.db import StoreError
+        from service.sync import off_block
+
+        try:
+            backlog: int | None = self.store.outbox_count()
+        except StoreError:
+            backlog = None
+        return off_block(backlog) if self.sync is None else self.sync.health(backlog)
 
     def tick(self) -> None:
         """Housekeeping, about once a second: detect held frames, retry spooled windows and
@@ -247,6 +269,8 @@ class Service:
     def close(self, wait_s: float | None = None) -> None:
         """Stop reading, store the open window, let a running job finish (up to
         ``scheduler.stop_wait_s``) or abandon it, and release everything."""
+        if self.sync is not None:  # a request in flight is aborted: no wait for the link
+            self.sync.stop()
         self.publisher.close()  # ends open /events streams
         self.scheduler.stop_starting()  # the flush below may store windows: they start nothing
         if self.reader is not None:
@@ -266,6 +290,7 @@ def _safe_meta(settings: Settings) -> dict[str, Any]:
     """The settings as stored with the session: without secrets."""
     meta = settings.model_dump(mode="json")
     meta.get("api", {}).pop("token", None)
+    meta.get("sync", {}).pop("token", None)
     return meta
 
 
@@ -320,6 +345,10 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
         raise
     ingest.replay()  # windows an earlier run made durable go in before any new one
     service = Service(settings, store, publisher, scheduler, ingest, session_id, events)
+    if settings.sync.enabled:  # started with the reader (run_daemon); its own thread and link
+        from service.sync import SyncThread
+
+        service.sync = SyncThread.from_settings(store, settings.sync, events)
     if with_reader:
         from drivers import FrameReader
 
@@ -480,6 +509,8 @@ def run_daemon(settings: Settings) -> int:
         server.should_exit = True
 
     service.reader.start()
+    if service.sync is not None:
+        service.sync.start()
     keeper = Housekeeping(service, stop, watchdog_s=watchdog_interval_s())
     threading.Thread(target=keeper.run, name="housekeeping", daemon=True).start()
     try:

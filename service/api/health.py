@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query, Request
 from service.api.models import EventOut, HealthOut
 from service.api.state import StoreDep
 from service.db import StoreError
+from service.sync.stats import off_block
 
 router = APIRouter()
 
@@ -16,13 +17,18 @@ router = APIRouter()
 @router.get("/health", response_model=HealthOut)
 def get_health(request: Request, store: StoreDep) -> HealthOut:
     """``ok``, or ``degraded`` with the reasons (device lost, database down, publish file
-    unwritable, job supervisor gone); the parts' state in ``service``."""
+    unwritable, job supervisor gone, the shore refusing this unit); the parts' state in
+    ``service``; the fleet link in ``sync`` (``off`` without a ``[sync]`` section)."""
     health = request.app.state.health
     parts = health() if health is not None else {}
-    problems = list(parts.get("problems", [])) if isinstance(parts, dict) else []
+    parts = dict(parts) if isinstance(parts, dict) else {}
+    problems = list(parts.get("problems", []))
+    sync = parts.pop("sync", None)  # its own block
     try:
         current = store.current()
         positions = store.count_positions()
+        if sync is None:
+            sync = off_block(store.outbox_count())
     except StoreError as exc:  # /health must answer while the database is down
         current, positions = None, -1
         problems.append(f"database: {exc}")
@@ -31,6 +37,7 @@ def get_health(request: Request, store: StoreDep) -> HealthOut:
         problems=problems,
         positions=positions,
         current_version=None if current is None else current.version,
+        sync=sync if sync is not None else off_block(None),
         service=parts,
     )
 

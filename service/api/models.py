@@ -60,11 +60,31 @@ class CalibrationSummaryOut(_VersionOut):
     sensor: str | None
 
 
+class DayTrafficOut(BaseModel):
+    day: str  # YYYY-MM-DD, UTC
+    bytes: int  # sent, compressed, every attempt
+    rows: int  # acknowledged by the shore
+
+
+class SyncOut(BaseModel):
+    """The fleet link (docs/fleet.md)."""
+
+    state: str  # off (no [sync] section), up, down, rejected (the shore refuses: see last_error)
+    url: str | None
+    unit: str | None
+    backlog: int | None  # outbox rows still to send (None: the database does not answer)
+    last_contact: str | None  # when the shore last answered, ISO 8601 UTC
+    last_error: str | None
+    bytes_today: int
+    bytes_per_day: list[DayTrafficOut]  # the last 7 UTC days, oldest first
+
+
 class HealthOut(BaseModel):
     status: str  # "ok", or "degraded" with the reasons in ``problems``
     problems: list[str]
     positions: int
     current_version: int | None
+    sync: SyncOut
     service: Any  # the parts' own state: reader, detector, scheduler, publisher, spool
 
 

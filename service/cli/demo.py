@@ -54,9 +54,15 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    f"{VESSEL_HOLDS} holds of {VESSEL_HOLD_S:g} s in a {VESSEL_ROLL_DEG:g}-degree "
                    f"sea joined by {VESSEL_TURN_DEG:g}-degree turns, the hull detector "
                    "([detector] motion = \"hull\"), a prior and [gate] publish_observable_part")  # fmt: skip
+    p.add_argument("--fleet", action="store_true",
+                   help="a shore service and three simulated vessels syncing to it (SQLite): "
+                   "every vessel's daemon runs a short session with [sync] pointed at the "
+                   "shore, one unit ages and has a version rejected; prints the fleet "
+                   "dashboard's URL (docs/fleet.md)")  # fmt: skip
     p.add_argument("--serve", action="store_true", help="then serve the HTTP API until Ctrl-C")
-    p.add_argument("--port", type=int, default=8750,
-                   help="TCP port of the API on 127.0.0.1 with --serve (default 8750)")  # fmt: skip
+    p.add_argument("--port", type=int, default=None,
+                   help="TCP port of the API on 127.0.0.1 with --serve (default 8750; "
+                   "with --fleet the shore's, default 8760)")  # fmt: skip
     p.set_defaults(func=run)
     return p
 
@@ -78,6 +84,14 @@ def run(args: argparse.Namespace) -> int:
     )
     from service.daemon import build_service
 
+    if args.fleet:
+        if args.vessel:
+            raise RecalInputError("--fleet and --vessel do not go together")
+        from service.cli.demo_fleet import run_fleet
+
+        return run_fleet(args)
+    if args.port is None:
+        args.port = 8750
     folder = Path(args.dir).resolve()
     if args.serve:  # say so now, not after the whole demo has run
         from service.startup import check_api_port

@@ -24,6 +24,8 @@ from recal import __version__
 from service.db import StoreError
 from service.fleet.batch import BatchError, read_batch
 from service.fleet.config import ShoreApiSettings
+from service.fleet.overview import overview as fleet_overview
+from service.fleet.priors import FleetPriors
 from service.fleet.store import FleetStore, Unit
 
 log = logging.getLogger("recal.fleet")
@@ -172,9 +174,14 @@ def create_app(store: FleetStore, api: ShoreApiSettings | None = None) -> FastAP
     )
     app.state.fleet_store = store
     app.state.fleet_api = api or ShoreApiSettings()
+    app.state.fleet_priors = FleetPriors(store)
     add_docs(app)
     app.add_exception_handler(StoreError, _store_unavailable)
     _routes(app)
+    _fleet_routes(app)
+    from service.fleet.dashboard import mount_fleet_dashboard
+
+    mount_fleet_dashboard(app)
     return app
 
 
@@ -303,3 +310,53 @@ def _routes(app: FastAPI) -> None:
         return store.fleet_versions(only=None if who.unit is None else who.unit.id, model=model,
                                     accepted=accepted, since=_utc(since), until=_utc(until),
                                     limit=limit)  # fmt: skip
+
+
+# ---- what the fleet manager sees (docs/fleet.md, "The fleet dashboard") ----------------------
+Model = Annotated[str, Query(min_length=1, max_length=64, description="the units' model")]
+
+
+def _priors(request: Request) -> FleetPriors:
+    return request.app.state.fleet_priors
+
+
+PriorsDep = Annotated[FleetPriors, Depends(_priors)]
+
+
+def _prior_of(priors: FleetPriors, who: Caller, model: str) -> dict[str, Any]:
+    """The model's current prior; 404 for a model without one, or not the caller unit's."""
+    if who.unit is not None and who.unit.model != model:
+        raise HTTPException(404, f"no fleet prior for model {model}")
+    found = priors.current([model]).get(model)
+    if not found:
+        raise HTTPException(
+            404,
+            f"no fleet prior for model {model}: it needs a unit of that model with two "
+            "accepted versions",
+        )
+    return found
+
+
+def _fleet_routes(app: FastAPI) -> None:
+    @app.get("/fleet/overview")
+    def overview(who: CallerDep, store: StoreDep, priors: PriorsDep) -> dict[str, Any]:
+        """One row per unit for the dashboard (units needing attention first) and the fleet's
+        totals; a unit's token: its own row alone."""
+        return fleet_overview(store, priors, only=None if who.unit is None else who.unit.id)
+
+    @app.get("/fleet/prior", responses={404: {"description": "no prior for this model"}})
+    def prior(model: Model, who: CallerDep, priors: PriorsDep) -> JSONResponse:
+        """The model's current fleet prior, a ``recal.fleet_prior/1`` document: save it and
+        point the vessel's ``[gate] fleet_prior`` at it. Its ``version`` rises only when the
+        accepted versions behind it changed. A unit's token: its own model's."""
+        return JSONResponse(_prior_of(priors, who, model))
+
+    @app.get("/fleet/outliers", responses={404: {"description": "no prior for this model"}})
+    def outliers(model: Model, who: CallerDep, priors: PriorsDep) -> dict[str, Any]:
+        """The units of ``model`` whose ageing fails the fleet prior's chi-square test, with
+        their statistic (a unit's token: itself, if flagged)."""
+        doc = _prior_of(priors, who, model)
+        flagged = [o for o in doc.get("outliers") or ()
+                   if who.unit is None or o.get("unit") == who.unit.serial]  # fmt: skip
+        return {"model": model, "prior_version": doc.get("version"),
+                "false_alarm": doc.get("false_alarm"), "outliers": flagged}  # fmt: skip

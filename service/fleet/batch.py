@@ -46,6 +46,8 @@ class Batch:
     unit: str
     sent_at: datetime | None
     rows: list[IncomingRow]
+    #: outbox rows the vessel still holds besides this batch (optional ``backlog``), or None
+    backlog: int | None = None
 
 
 def decompress(body: bytes, encoding: str | None, max_bytes: int) -> bytes:
@@ -84,10 +86,15 @@ def read_batch(body: bytes, encoding: str | None, max_bytes: int) -> Batch:
     sent_at = None
     if doc.get("sent_at") is not None:
         sent_at = _time(doc["sent_at"], "sent_at")
+    backlog = doc.get("backlog")
+    if backlog is not None and (
+        isinstance(backlog, bool) or not isinstance(backlog, int) or not 0 <= backlog <= MAX_ID
+    ):
+        raise BatchError(422, f"backlog {backlog!r} is not a count of rows")
     rows = doc.get("rows")
     if not isinstance(rows, list):
         raise BatchError(422, "rows must be a list")
-    return Batch(unit, sent_at, [_row(i, r) for i, r in enumerate(rows)])
+    return Batch(unit, sent_at, [_row(i, r) for i, r in enumerate(rows)], backlog)
 
 
 def _row(index: int, row: Any) -> IncomingRow:

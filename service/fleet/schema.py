@@ -103,7 +103,12 @@ class VersionRow(_VesselRow, FleetBase):
 
 class EventRow(_VesselRow, FleetBase):
     __tablename__ = "fleet_events"
-    __table_args__ = (*_key_and_time(__tablename__), Index("ix_fleet_events_kind_at", "kind", "at"))
+    __table_args__ = (
+        *_key_and_time(__tablename__),
+        Index("ix_fleet_events_kind_at", "kind", "at"),
+        # a unit's latest event of a kind (the overview's drift state), migration 0002
+        Index("ix_fleet_events_unit_kind", "unit_id", "kind", "vessel_id"),
+    )
 
     kind: Mapped[str] = mapped_column(String(64))
 
@@ -120,6 +125,23 @@ class IngestRow(FleetBase):
     compressed_bytes: Mapped[int] = mapped_column(Integer)
     rows: Mapped[int] = mapped_column(Integer)
     stored: Mapped[int] = mapped_column(Integer)
+    #: outbox rows the vessel still held besides this batch, when the batch said (0002)
+    backlog: Mapped[int | None] = mapped_column(Integer)
+
+
+class PriorRow(FleetBase):
+    """A fleet prior computed for a model (``recal.fleet_prior/1`` in ``document``); a new
+    ``version`` only when ``inputs`` (a digest of the accepted versions behind it) changed."""
+
+    __tablename__ = "fleet_priors"
+    __table_args__ = (UniqueConstraint("model", "version", name="uq_fleet_priors_model_version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    model: Mapped[str] = mapped_column(String(64))
+    version: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    inputs: Mapped[str] = mapped_column(String(64))
+    document: Mapped[dict] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
 
 
 #: The table of each kind of the wire format (docs/fleet.md).

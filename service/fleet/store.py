@@ -284,7 +284,7 @@ class FleetStore:
                     )
                 s.execute(update(UnitRow).where(UnitRow.id == unit.id).values(**values))
             s.add(IngestRow(unit_id=unit.id, at=now, compressed_bytes=compressed_bytes,
-                            rows=len(batch.rows), stored=stored))  # fmt: skip
+                            rows=len(batch.rows), stored=stored, backlog=batch.backlog))  # fmt: skip
         return stored, len(batch.rows) - stored
 
     # ---- queries ------------------------------------------------------------------------

@@ -6,7 +6,7 @@ on the Store's own connection through :func:`alembic_config`. Revisions are writ
 its integer in the ``schema_version`` table, so a release that predates it refuses the database
 instead of writing into a schema it does not know. Future ALTERs run in batch mode on SQLite.
 
-A new revision, from a checkout (then edit it, and bump ``service.db.SCHEMA_VERSION``)::
+A new revision, from a checkout (then edit it, and bump ``SCHEMA_VERSION`` in service/store/schema.py)::
 
     python -c "from alembic import command; from service.migrations import alembic_config; \\
         command.revision(alembic_config(), 'what it does', rev_id='0003')"

@@ -6,7 +6,7 @@ from __future__ import annotations
 from alembic import context
 from sqlalchemy import create_engine
 
-from service.db import Base
+from service.store.rows import Base
 
 config = context.config
 options = {

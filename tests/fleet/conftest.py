@@ -148,3 +148,66 @@ class Wire:
 @pytest.fixture
 def wire() -> type[Wire]:
     return Wire
+
+
+# ---- a small ageing fleet, as the vessels would send it (the overview, prior and dashboard) ----
+MONTH_S = 365.25 / 12 * 86400
+
+
+def calibration_doc(names: list[str], values: Any, sigma: Any) -> dict[str, Any]:
+    """A calibration document (conventions, section 5) from flat values and 1-sigma."""
+    axis = {"x": 0, "y": 1, "z": 2}
+    coefficients: dict[str, Any] = {}
+    uncertainty: dict[str, Any] = {}
+    for name, v, s in zip(names, values, sigma, strict=True):
+        sensor, key, param = name.split(".")
+        for out, x in ((coefficients, v), (uncertainty, s)):
+            block = out.setdefault(sensor, {})
+            if key == "misalignment":
+                block.setdefault(key, {})[param] = float(x)
+            else:
+                block.setdefault(key, [0.0, 0.0, 0.0])[axis[param[-1]]] = float(x)
+    return {"coefficients": coefficients, "uncertainty": uncertainty, "chi2_red": 1.0,
+            "navigation": {"after": {"heading_error_deg_rms": 0.05}}}  # fmt: skip
+
+
+def simulated_fleet(units: int = 8, outliers: int = 1, seed: int = 3) -> dict[str, Any]:
+    """``{serial: rows}`` in the wire format: ``units`` KVH-1750 units ageing over two years
+    (recal.fleet.simulate_fleet; ``outliers`` of them ten times faster), each version an
+    accepted version row dated by its months of service from 2024-11-01, then a session, a few
+    windows, events (a steady drift look) and the unit's link."""
+    from datetime import UTC, datetime, timedelta
+
+    import numpy as np
+
+    from recal.fleet.history import is_relative
+    from recal.fleet.simulate import simulate_fleet
+    from service.fleet.priors import coefficient_names
+
+    names = coefficient_names()
+    nominal = np.array([1.0 if is_relative(n) else 1e-3 for n in names])
+    sigma = np.array([2e-6 if is_relative(n) else 1e-5 for n in names])
+    fleet = simulate_fleet(names, nominal, 2 * sigma, sigma, units=units, years=2.0,
+                           interval_months=(2.0, 5.0), outliers=outliers, outlier_factor=10.0,
+                           seed=seed, prefix="KVH-1750-SN")  # fmt: skip
+    table = fleet.versions
+    start = datetime(2024, 11, 1, tzinfo=UTC)
+    out: dict[str, Any] = {"outliers": fleet.outliers, "units": {}}
+    for i, serial in enumerate(table.units):
+        rows: list[dict[str, Any]] = []
+        mine = np.flatnonzero(table.unit == i)
+        for k, j in enumerate(mine, start=1):
+            at = (start + timedelta(seconds=float(table.months[j]) * MONTH_S)).isoformat()
+            at = at.replace("+00:00", "Z")
+            data = {"version": k, "created_at": at, "trigger": "information" if k > 1 else "count",
+                    "method": "lm", "accepted": True, "reasons": [], "prior_version": k - 1 or None,
+                    "document": calibration_doc(names, table.values[j], table.sigma[j]),
+                    "positions_used": [1, 2, 3]}  # fmt: skip
+            rows.append({"kind": "version", "id": k, "at": at, "data": data})
+        out["units"][serial] = rows
+    return out
+
+
+@pytest.fixture(name="simulated_fleet")
+def simulated_fleet_fixture() -> Any:
+    return simulated_fleet

@@ -194,3 +194,138 @@ def systemd(monkeypatch: pytest.MonkeyPatch) -> Iterator[Systemd]:
             yield receiver
         finally:
             receiver.close()
+
+
+# ---- a shore for fleet sync (docs/fleet.md) ---------------------------------------------------
+
+
+class Shore:
+    """A tiny ``POST /fleet/ingest`` on ``http.server``: docs/fleet.md's contract (bearer token of
+    one unit, gzip JSON format 1, 401/403/413/422, 200 ``{"stored", "duplicates"}`` after the
+    commit) with rows in SQLite, inserted or ignored by (unit, kind, id). ``mode`` plays the
+    link's troubles: ``ok``; ``fail`` (500); ``lose_ack`` (commits, then drops the connection
+    unanswered, once); ``hang`` (accepts the request and never answers). ``bad_rows``: (kind, id)
+    keys answered 422 naming the row. The real shore service is service/fleet/."""
+
+    KINDS = ("session", "window", "slew", "version", "event")
+
+    def __init__(self, unit: str = "KVH-1750-SN0042", token: str = "unit-token-0123456789"):
+        import http.server
+        import sqlite3
+
+        self.unit, self.token = unit, token
+        self.mode = "ok"
+        self.bad_rows: set[tuple[str, int]] = set()
+        self.max_json_bytes: int | None = None
+        self.requests: list[dict[str, Any]] = []  # status and rows of each request, in order
+        self.release = threading.Event()  # ends the hanging requests
+        self._lock = threading.Lock()
+        self._db = sqlite3.connect(":memory:", check_same_thread=False, isolation_level=None)
+        self._db.execute("CREATE TABLE rows (unit TEXT, kind TEXT, id INTEGER, at TEXT, "
+                         "data TEXT, PRIMARY KEY (unit, kind, id))")  # fmt: skip
+        shore = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def log_message(self, *args: Any) -> None:
+                pass
+
+            def do_POST(self) -> None:  # noqa: N802 - http.server's name
+                shore._handle(self)
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.server.daemon_threads = True
+        self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.server.server_address[1]}"
+
+    def rows(self, kind: str | None = None) -> list[tuple[str, int, Any]]:
+        """What the shore stored: (kind, id, data), by kind then id."""
+        import json
+
+        query = "SELECT kind, id, data FROM rows" + (" WHERE kind = ?" if kind else "")
+        with self._lock:
+            got = self._db.execute(query + " ORDER BY kind, id", (kind,) if kind else ()).fetchall()
+        return [(k, i, json.loads(d)) for k, i, d in got]
+
+    def close(self) -> None:
+        self.release.set()
+        self.server.shutdown()
+        self.server.server_close()
+
+    def _answer(self, h: Any, status: int, body: dict[str, Any], rows: int = 0,
+                size: int = 0) -> None:  # fmt: skip
+        import json
+
+        data = json.dumps(body).encode()
+        self.requests.append({"status": status, "rows": rows, "body": body, "json_bytes": size})
+        h.send_response(status)
+        h.send_header("Content-Type", "application/json")
+        h.send_header("Content-Length", str(len(data)))
+        h.end_headers()
+        h.wfile.write(data)
+
+    def _handle(self, h: Any) -> None:
+        import gzip
+        import json
+
+        body = h.rfile.read(int(h.headers.get("Content-Length", 0)))
+        if h.path != "/fleet/ingest":
+            return self._answer(h, 404, {"detail": "not found"})
+        if h.headers.get("Authorization") != f"Bearer {self.token}":
+            return self._answer(h, 401, {"detail": "unknown token"})
+        if self.mode == "hang":
+            self.requests.append({"status": None, "rows": 0})
+            self.release.wait(60)
+            return None
+        if self.mode == "fail":
+            return self._answer(h, 500, {"detail": "database unavailable"})
+        try:
+            assert h.headers.get("Content-Encoding") == "gzip", "not gzip"
+            raw = gzip.decompress(body)
+            batch = json.loads(raw)
+            assert batch["format"] == 1, "format"
+        except (AssertionError, OSError, ValueError, KeyError) as exc:
+            return self._answer(h, 422, {"detail": f"malformed batch: {exc}"})
+        if self.max_json_bytes is not None and len(raw) > self.max_json_bytes:
+            return self._answer(h, 413, {"detail": "batch too large"})
+        if batch["unit"] != self.unit:
+            return self._answer(h, 403, {"detail": f"token is not for {batch['unit']}"})
+        for i, row in enumerate(batch["rows"]):
+            ok = (row.get("kind") in self.KINDS and isinstance(row.get("id"), int)
+                  and isinstance(row.get("at"), str) and isinstance(row.get("data"), dict))  # fmt: skip
+            if not ok or (row["kind"], row["id"]) in self.bad_rows:
+                name = f"{row.get('kind')} {row.get('id')}"
+                return self._answer(h, 422, {"detail": f"rows[{i}] ({name}): not storable"})
+        stored = 0
+        with self._lock:  # one transaction, answered after the commit
+            self._db.execute("BEGIN")
+            for row in batch["rows"]:
+                cur = self._db.execute(
+                    "INSERT OR IGNORE INTO rows VALUES (?, ?, ?, ?, ?)",
+                    (batch["unit"], row["kind"], row["id"], row["at"], json.dumps(row["data"])),
+                )
+                stored += cur.rowcount
+            self._db.execute("COMMIT")
+        n = len(batch["rows"])
+        if self.mode == "lose_ack":  # committed; the answer never arrives
+            self.mode = "ok"
+            self.requests.append({"status": "lost", "rows": n})
+            h.close_connection = True
+            h.connection.shutdown(socket.SHUT_RDWR)
+            return None
+        return self._answer(h, 200, {"stored": stored, "duplicates": n - stored}, n, len(raw))
+
+
+@pytest.fixture
+def shore() -> Iterator[Shore]:
+    """``shore.url`` answers ``POST /fleet/ingest`` for unit ``shore.unit`` / ``shore.token``."""
+    s = Shore()
+    try:
+        yield s
+    finally:
+        s.close()

@@ -51,6 +51,16 @@ def test_health_counts_positions_and_current_version(
         "problems": [],
         "positions": 0,
         "current_version": None,
+        "sync": {
+            "state": "off",
+            "url": None,
+            "unit": None,
+            "backlog": 0,
+            "last_contact": None,
+            "last_error": None,
+            "bytes_today": 0,
+            "bytes_per_day": [],
+        },  # fmt: skip
         "service": {"frames": 12},
     }
     sid = sqlite_store.add_session("sim")

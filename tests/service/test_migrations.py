@@ -160,6 +160,24 @@ def reduced(seed: int) -> ReducedSlew:
     return ReducedSlew(None, None, rng.normal(size=3), 400, groups, None)
 
 
+def check_history_is_in_the_outbox(store: Store, served: dict[str, Any]) -> None:
+    """Revision 0004 gave every stored row an outbox row (fleet sync sends the history), once,
+    oldest first, a session before its windows."""
+    entries = store.outbox(10_000)
+    keys = [(e.kind, e.ref_id) for e in entries]
+    expected = (
+        {("session", 1), ("session", 2)}
+        | {("window", i) for i in served["all"]}
+        | {("version", r["version"]) for r in served["history"]}
+        | {("event", e["id"]) for e in served["events"]}
+    )
+    assert len(keys) == len(expected) == 38 and set(keys) == expected
+    assert [e.seq for e in entries] == sorted(e.seq for e in entries)
+    assert keys.index(("session", 1)) < keys.index(("window", served["ids1"][0]))
+    assert keys.index(("session", 2)) < keys.index(("window", served["ids2"][0]))
+    assert keys[0] == ("version", 1)  # stored with an earlier time than anything else
+
+
 def check_upgrade_keeps_everything(url: str) -> None:
     old = Store(url)  # the release's database opens as it is (schema version 1 is known)
     before, served = dump(url), snapshot(old)
@@ -173,11 +191,14 @@ def check_upgrade_keeps_everything(url: str) -> None:
     old.close()
     store = Store(url)
     after = dump(url)
-    assert after.pop("schema_version")[:-2] == before.pop("schema_version")
+    assert after.pop("schema_version")[:-3] == before.pop("schema_version")
+    if "sqlite_sequence" in after:  # the outbox's numbers are new; the versions' kept
+        after["sqlite_sequence"] = [r for r in after["sqlite_sequence"] if r[0] != "outbox"]
     assert after == before
     assert snapshot(store) == served
-    assert store.schema_version() == SCHEMA_VERSION == 3  # the release refuses it from now on
+    assert store.schema_version() == SCHEMA_VERSION == 4  # the release refuses it from now on
     assert store.schema_revision() == migrations.head()
+    check_history_is_in_the_outbox(store, served)
 
     # the new table works, and versions go on from the last one
     last = served["ids1"][-1]
@@ -225,7 +246,7 @@ def test_upgrade_is_idempotent(store_url: str, store: Store, document: dict[str,
     again.create_schema()
     command.upgrade(migrations.alembic_config(url=store_url), "head")
     assert dump(store_url) == before  # one schema_version row per version, data untouched
-    assert [r[0] for r in before["schema_version"]] == [1, 2, 3]
+    assert [r[0] for r in before["schema_version"]] == [1, 2, 3, 4]
     assert again.recorded_schema() == (SCHEMA_VERSION, migrations.head())
     again.close()
 
@@ -247,7 +268,7 @@ def test_concurrent_starts_migrate_once(store_url: str) -> None:
     for t in threads:
         t.join()
     assert errors == []
-    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3]
+    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3, 4]
 
 
 def test_downgrade_and_upgrade_again(store_url: str, store: Store) -> None:

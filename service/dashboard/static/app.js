@@ -380,6 +380,33 @@ function renderHealth(h) {
   $("counters").replaceChildren(...counters.map(([k, v]) => el("div", {}, el("dt", {}, k),
     el("dd", {}, typeof v === "number" ? v.toLocaleString("en-GB") : v ?? "-"))));
   renderRefusals(s.detector);
+  renderSync(h.sync);
+}
+
+// the fleet link (/health sync): its state, what waits in the outbox, and today's traffic
+const SYNC_PILL = { up: "pill-ok", down: "pill-bad", rejected: "pill-bad", off: "pill-wait" };
+function bytesWord(n) {
+  if (!isNum(n)) return "-";
+  return n < 1024 ? `${n} B` : n < 1048576 ? `${(n / 1024).toFixed(1)} KiB` : `${(n / 1048576).toFixed(1)} MiB`;
+}
+function renderSync(sync) {
+  if (!sync || typeof sync !== "object") return;
+  const pill = $("sync-state");
+  pill.textContent = sync.state === "off" ? "off" : `link ${sync.state}`;
+  pill.className = `pill ${SYNC_PILL[sync.state] || "pill-wait"}`;
+  $("sync-where").textContent = sync.state === "off"
+    ? "No [sync] section: nothing is sent to the shore."
+    : `${sync.unit} to ${sync.url}`;
+  const week = (sync.bytes_per_day || []).reduce((a, d) => a + (isNum(d.bytes) ? d.bytes : 0), 0);
+  const rows = [
+    ["backlog (rows to send)", isNum(sync.backlog) ? sync.backlog.toLocaleString("en-GB") : "-"],
+    ["last contact", sync.last_contact ? sync.last_contact.replace("T", " ").slice(0, 19) + " UTC" : "never"],
+    ["sent today", bytesWord(sync.bytes_today)], ["sent in 7 days", bytesWord(week)],
+  ];
+  $("sync-counters").replaceChildren(...rows.map(([k, v]) => el("div", {}, el("dt", {}, k), el("dd", {}, v))));
+  const err = $("sync-error");
+  err.hidden = !sync.last_error;
+  err.textContent = sync.last_error || "";
 }
 
 // what the detector refused, by reason (/health service.detector: the rest check's turning,

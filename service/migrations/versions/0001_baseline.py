@@ -22,7 +22,7 @@ down_revision: str | None = None
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
-# What the ORM's annotations map to (service.db.Base.type_annotation_map).
+# What the ORM's annotations map to (service.store.rows.Base.type_annotation_map).
 WHEN = sa.DateTime(timezone=True)
 
 

@@ -1,0 +1,53 @@
+"""The fleet dashboard (``GET /fleet/dashboard``): one static page in the vessel dashboard's
+style, reading the shore's REST API with the token the user types (kept in sessionStorage).
+
+Everything it loads is served here: its own page and script (``static/``), the vessel
+dashboard's stylesheet (service/dashboard/static/dashboard.css) and ``plotly.min.js`` from the
+installed plotly package; the vessel page's Content-Security-Policy applies (no external CDN,
+no inline script). The page itself carries no data, so it needs no token; every read does.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.responses import FileResponse, HTMLResponse
+
+from service.dashboard import _PAGE_HEADERS, STATIC, plotly_js
+
+FLEET_STATIC = Path(str(resources.files(__package__) / "static"))
+#: The page's own files, and the vessel dashboard's it reuses.
+_ASSETS = {
+    "fleet.js": (FLEET_STATIC / "fleet.js", "text/javascript"),
+    "fleet.css": (FLEET_STATIC / "fleet.css", "text/css"),
+    "dashboard.css": (STATIC / "dashboard.css", "text/css"),
+    "favicon.svg": (STATIC / "favicon.svg", "image/svg+xml"),
+}
+
+
+def mount_fleet_dashboard(app: FastAPI) -> None:
+    """Add ``/fleet/dashboard`` and its assets under ``/fleet/dashboard/`` (not in the
+    OpenAPI schema)."""
+    page = (FLEET_STATIC / "index.html").read_text(encoding="utf-8")
+
+    @app.get("/fleet/dashboard", include_in_schema=False)
+    def dashboard() -> HTMLResponse:
+        return HTMLResponse(page, headers=_PAGE_HEADERS)
+
+    @app.get("/fleet/dashboard/plotly.min.js", include_in_schema=False)
+    def plotly_asset() -> FileResponse:
+        return FileResponse(plotly_js(), media_type="text/javascript",
+                            headers={"Cache-Control": "max-age=86400"})  # fmt: skip
+
+    for name, (path, media) in _ASSETS.items():
+        app.add_api_route(f"/fleet/dashboard/{name}", _asset(path, media), methods=["GET"],
+                          include_in_schema=False)  # fmt: skip
+
+
+def _asset(path: Path, media: str):  # noqa: ANN202 - a route handler
+    def asset() -> FileResponse:
+        return FileResponse(path, media_type=media, headers={"Cache-Control": "no-cache"})
+
+    return asset

@@ -1,0 +1,303 @@
+"""What the fleet manager sees: one row per unit (``GET /fleet/overview``) and fleet totals.
+
+A row is built from what the vessels sent (docs/fleet.md): the versions (the current one is
+the newest accepted; its age, its gyrocompass heading error from its document's
+``navigation.after``), the rejected ones (their count, the last one's reasons), the last
+version's trigger, the unit's latest ``drift`` event (service/scheduler.py: ``alarm_window``
+set means drift was declared against ``version``), the ingest log (last contact, bytes per day
+over the last 7 days, the backlog the vessel last reported) and its model's fleet prior (is the
+unit an outlier). Units that need a person come first (``attention``): a rejected last
+version, drift declared against the current version, an outlier of its model, a stale link.
+
+The whole overview is a fixed number of SQL statements, whatever the number of units: each
+query is grouped by unit, and only the few JSON fields shown are selected out of the documents.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from sqlalchemy import and_, func, select
+from sqlalchemy.orm import aliased
+
+from service.fleet.priors import FleetPriors
+from service.fleet.schema import EventRow, IngestRow, UnitRow, VersionRow, WindowRow
+from service.fleet.store import FleetStore, _time
+
+#: Days of traffic in a row's ``bytes_per_day``.
+LINK_DAYS = 7
+#: A unit not heard from for longer is ``stale`` (hours).
+STALE_HOURS = 48.0
+#: The order of ``attention`` (and of the rows: the first reason ranks a unit).
+ATTENTION = ("rejected", "drift", "outlier", "stale", "never")
+
+
+def _day(store: FleetStore, column: Any) -> Any:
+    if store.dialect == "postgresql":
+        return func.to_char(func.timezone("UTC", column), "YYYY-MM-DD")
+    return func.strftime("%Y-%m-%d", column)
+
+
+def _latest(table: Any, *where: Any) -> Any:
+    """(unit_id, newest vessel row id) of ``table`` rows matching ``where``, per unit."""
+    return (
+        select(table.unit_id, func.max(table.vessel_id).label("v"))
+        .where(*where)
+        .group_by(table.unit_id)
+        .subquery()
+    )
+
+
+def overview(
+    store: FleetStore,
+    priors: FleetPriors,
+    only: int | None = None,
+    now: datetime | None = None,
+) -> dict[str, Any]:
+    """``{"units": [row, ...], "totals": {...}, "models": {...}, "generated_at"}`` (rows in
+    order of attention, then serial); ``only``: one unit's id (a unit's token)."""
+    now = now or datetime.now(UTC)
+    unit_filter = [] if only is None else [UnitRow.id == only]
+
+    # 1. units with their counts
+    def count(table: Any, *where: Any) -> Any:
+        return (
+            select(table.unit_id, func.count().label("n"))
+            .where(*where)
+            .group_by(table.unit_id)
+            .subquery()
+        )
+
+    versions = count(VersionRow)
+    rejected = count(VersionRow, VersionRow.accepted.is_(False))
+    windows = count(WindowRow)
+    q_units = (
+        select(UnitRow, versions.c.n, rejected.c.n, windows.c.n)
+        .outerjoin(versions, versions.c.unit_id == UnitRow.id)
+        .outerjoin(rejected, rejected.c.unit_id == UnitRow.id)
+        .outerjoin(windows, windows.c.unit_id == UnitRow.id)
+        .where(*unit_filter)
+        .order_by(UnitRow.serial)
+    )
+    # 2. the current (newest accepted), the last and the last rejected version of each unit
+    current_v = _latest(VersionRow, VersionRow.accepted.is_(True))
+    last_v = _latest(VersionRow)
+    rejected_v = _latest(VersionRow, VersionRow.accepted.is_(False))
+    cur, last, rej = (aliased(VersionRow) for _ in range(3))
+    heading = cur.data[("document", "navigation", "after", "heading_error_deg_rms")]
+    q_versions = (
+        select(
+            UnitRow.id,
+            cur.vessel_id,
+            cur.at,
+            heading,
+            cur.trigger,
+            last.vessel_id,
+            last.at,
+            last.trigger,
+            last.accepted,
+            rej.vessel_id,
+            rej.at,
+            rej.data[("reasons",)],
+        )  # fmt: skip
+        .outerjoin(current_v, current_v.c.unit_id == UnitRow.id)
+        .outerjoin(cur, and_(cur.unit_id == UnitRow.id, cur.vessel_id == current_v.c.v))
+        .outerjoin(last_v, last_v.c.unit_id == UnitRow.id)
+        .outerjoin(last, and_(last.unit_id == UnitRow.id, last.vessel_id == last_v.c.v))
+        .outerjoin(rejected_v, rejected_v.c.unit_id == UnitRow.id)
+        .outerjoin(rej, and_(rej.unit_id == UnitRow.id, rej.vessel_id == rejected_v.c.v))
+        .where(*unit_filter)
+    )
+    # 3. the latest drift evaluation of each unit
+    drift_e = _latest(EventRow, EventRow.kind == "drift")
+    q_drift = (
+        select(EventRow.unit_id, EventRow.at, EventRow.data)
+        .join(drift_e, and_(drift_e.c.unit_id == EventRow.unit_id, drift_e.c.v == EventRow.vessel_id))
+        .where(*([] if only is None else [EventRow.unit_id == only]))
+    )  # fmt: skip
+    # 4. the link: bytes per day over the last LINK_DAYS, and the backlog of the last batch
+    since = (now - timedelta(days=LINK_DAYS - 1)).replace(hour=0, minute=0, second=0,
+                                                          microsecond=0)  # fmt: skip
+    day = _day(store, IngestRow.at)
+    q_link = (
+        select(IngestRow.unit_id, day, func.sum(IngestRow.compressed_bytes), func.sum(IngestRow.rows))
+        .where(IngestRow.at >= since, *([] if only is None else [IngestRow.unit_id == only]))
+        .group_by(IngestRow.unit_id, day)
+    )  # fmt: skip
+    last_batch = (
+        select(IngestRow.unit_id, func.max(IngestRow.id).label("i"))
+        .group_by(IngestRow.unit_id)
+        .subquery()
+    )
+    q_backlog = select(IngestRow.unit_id, IngestRow.backlog).join(
+        last_batch, last_batch.c.i == IngestRow.id
+    )
+    if only is not None:
+        q_backlog = q_backlog.where(IngestRow.unit_id == only)
+
+    with store._tx() as s:
+        units = s.execute(q_units).all()
+        by_version = {r[0]: r[1:] for r in s.execute(q_versions)}
+        drift = {u: (at, data) for u, at, data in s.execute(q_drift)}
+        traffic: dict[int, dict[str, tuple[int, int]]] = defaultdict(dict)
+        for u, d, b, n in s.execute(q_link):
+            traffic[u][d] = (int(b or 0), int(n or 0))
+        backlog = dict(s.execute(q_backlog).all())
+
+    # 5. the fleet priors of the models shown (their outliers): a fixed number of queries too
+    models = sorted({u.model for u, *_ in units if u.model})
+    current_priors = priors.current(models) if models else {}
+    flagged = {
+        (m, o["unit"]): o for m, doc in current_priors.items() for o in doc.get("outliers") or ()
+    }
+
+    days = [(since + timedelta(days=i)).strftime("%Y-%m-%d") for i in range(LINK_DAYS)]
+    rows = []
+    for u, n_versions, n_rejected, n_windows in units:
+        v = by_version.get(u.id) or (None,) * 11
+        (cur_id, cur_at, cur_heading, cur_trigger, last_id, last_at, last_trigger,
+         last_accepted, rej_id, rej_at, rej_reasons) = v  # fmt: skip
+        row: dict[str, Any] = {
+            "unit": u.serial,
+            "model": u.model,
+            "versions": n_versions or 0,
+            "windows": n_windows or 0,
+            "current_version": cur_id,
+            "current_created_at": _time(cur_at),
+            "age_days": None if cur_at is None else round(_age_days(now, cur_at), 2),
+            "heading_error_deg_rms": _number(cur_heading),
+            "rejected": {
+                "count": n_rejected or 0,
+                "last_version": rej_id,
+                "last_at": _time(rej_at),
+                "last_reasons": [str(r) for r in rej_reasons]
+                if isinstance(rej_reasons, list)
+                else [],
+            },  # fmt: skip
+            "last_version": last_id,
+            "last_accepted": last_accepted,
+            "last_trigger": last_trigger,
+            "drift": _drift_state(drift.get(u.id), cur_id, last_trigger, last_accepted),
+            "link": _link(u, traffic.get(u.id, {}), days, backlog.get(u.id), now),
+            "outlier": _outlier(flagged.get((u.model, u.serial)), current_priors.get(u.model)),
+        }
+        row["attention"] = _attention(row)
+        rows.append(row)
+    rows.sort(key=lambda r: (_rank(r["attention"]), r["unit"]))
+    return {
+        "generated_at": _time(now),
+        "units": rows,
+        "totals": _totals(rows),
+        "models": {
+            m: {
+                "prior_version": d.get("version"),
+                "prior_created_at": d.get("created_at"),
+                "outliers": len(d.get("outliers") or ()),
+            }
+            for m, d in current_priors.items()
+        },  # fmt: skip
+    }
+
+
+def _age_days(now: datetime, at: datetime) -> float:
+    at = at.replace(tzinfo=UTC) if at.tzinfo is None else at
+    return (now - at).total_seconds() / 86400.0
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def _drift_state(
+    latest: tuple[datetime, Any] | None,
+    current: int | None,
+    last_trigger: str | None,
+    last_accepted: bool | None,
+) -> dict[str, Any]:
+    """``state``: ``drift`` (declared against the current version, not yet recalibrated),
+    ``recalibrated`` (declared against an older version, or the last version was a drift job
+    that was accepted), ``steady`` (the latest evaluation found none) or ``unknown`` (none
+    received); with the latest evaluation's figures."""
+    out: dict[str, Any] = {"state": "unknown", "at": None, "statistic": None,
+                           "threshold": None, "suspect": None, "version": None}  # fmt: skip
+    if latest is None:
+        if last_trigger == "drift":
+            out["state"] = "recalibrated" if last_accepted else "drift"
+        return out
+    at, data = latest
+    data = data if isinstance(data, dict) else {}
+    inner = data.get("data") if isinstance(data.get("data"), dict) else {}
+    out.update(at=_time(at), statistic=_number(inner.get("statistic")),
+               threshold=_number(inner.get("threshold")), suspect=inner.get("suspect"),
+               version=inner.get("version"))  # fmt: skip
+    if inner.get("alarm_window") is None:
+        out["state"] = "steady"
+    elif current is None or not isinstance(inner.get("version"), int):
+        out["state"] = "drift"
+    else:
+        out["state"] = "drift" if inner["version"] >= current else "recalibrated"
+    return out
+
+
+def _link(
+    unit: Any, traffic: dict[str, tuple[int, int]], days: list[str], backlog: int | None,
+    now: datetime,
+) -> dict[str, Any]:  # fmt: skip
+    contact = unit.last_contact
+    hours = None
+    if contact is not None:
+        hours = now - (contact.replace(tzinfo=UTC) if contact.tzinfo is None else contact)
+        hours = round(hours.total_seconds() / 3600.0, 2)
+    per_day = [{"day": d, "bytes": traffic.get(d, (0, 0))[0], "rows": traffic.get(d, (0, 0))[1]}
+               for d in days]  # fmt: skip
+    state = "never" if contact is None else ("stale" if hours > STALE_HOURS else "up")
+    return {
+        "state": state,
+        "last_contact": _time(contact),
+        "hours_since_contact": hours,
+        "bytes_per_day": per_day,
+        "bytes_7d": sum(d["bytes"] for d in per_day),
+        "backlog": backlog,
+    }
+
+
+def _outlier(found: dict[str, Any] | None, prior: dict[str, Any] | None) -> dict[str, Any]:
+    if found is None:
+        return {"flagged": False, "prior_version": None if prior is None else prior.get("version")}
+    return {"flagged": True, "prior_version": prior.get("version") if prior else None,
+            "statistic": found.get("statistic"), "dof": found.get("dof"),
+            "p_value": found.get("p_value")}  # fmt: skip
+
+
+def _attention(row: dict[str, Any]) -> list[str]:
+    out = []
+    if row["last_accepted"] is False:
+        out.append("rejected")
+    if row["drift"]["state"] == "drift":
+        out.append("drift")
+    if row["outlier"]["flagged"]:
+        out.append("outlier")
+    if row["link"]["state"] in ("stale", "never"):
+        out.append(row["link"]["state"])
+    return out
+
+
+def _rank(attention: list[str]) -> tuple[int, ...]:
+    return tuple(sorted(ATTENTION.index(a) for a in attention)) + (len(ATTENTION),)
+
+
+def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    return {
+        "units": len(rows),
+        "versions": sum(r["versions"] for r in rows),
+        "rejected": sum(r["rejected"]["count"] for r in rows),
+        "windows": sum(r["windows"] for r in rows),
+        "attention": sum(1 for r in rows if r["attention"]),
+        "drift": sum(1 for r in rows if r["drift"]["state"] == "drift"),
+        "outliers": sum(1 for r in rows if r["outlier"]["flagged"]),
+        "stale": sum(1 for r in rows if r["link"]["state"] != "up"),
+        "bytes_7d": sum(r["link"]["bytes_7d"] for r in rows),
+        "backlog": sum(r["link"]["backlog"] or 0 for r in rows),
+    }

@@ -1,0 +1,193 @@
+"""The fleet prior of each model, computed on shore from the stored accepted versions.
+
+:func:`recal.fleet.fleet_prior` does the numerics; this module feeds it the shore's version
+documents (:meth:`recal.fleet.VersionTable.from_documents`, by the conventions' flat names of
+the seed terms) and keeps every prior it computed in ``fleet_priors``. A prior's ``version``
+is raised only when its inputs changed: the inputs are digested per model as (unit, accepted
+versions stored, the newest's shore row id) -- versions are stored once and never changed, so
+the digest changes exactly when an accepted version arrives or a unit changes model. Asking
+again with the same inputs answers the stored prior (a process cache spares the database even
+that), so a dashboard refresh never recomputes.
+
+Every call runs a fixed number of SQL statements, whatever the number of units and models.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+from collections import defaultdict
+from collections.abc import Iterable
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
+
+from service.db import StoreError
+from service.fleet.schema import PriorRow, UnitRow, VersionRow
+
+#: Units of no registered model are grouped under this name in the overview (no prior).
+NO_MODEL = None
+
+
+def coefficient_names() -> list[str]:
+    """The conventions' flat names of the seed terms (``gyro.scale.Kx`` ... ``accel.quadratic.K2z``)."""
+    from recal.model.plugins import SENSORS
+    from recal.model.terms import seed_terms
+
+    return [f"{t.name}.{p}" for s in SENSORS for t in seed_terms(s) for p in t.params]
+
+
+class FleetPriors:
+    """The current prior of each model of one :class:`~service.fleet.store.FleetStore`."""
+
+    def __init__(self, store: Any) -> None:
+        self._store = store
+        self._cache: dict[str, tuple[str, dict[str, Any]]] = {}  # model -> (inputs, document)
+        self._lock = threading.Lock()  # one computation at a time per process
+
+    def inputs(self, models: Iterable[str] | None = None) -> dict[str, str]:
+        """The inputs' digest of every model (or of ``models``) that has units: one query."""
+        accepted = (
+            select(
+                VersionRow.unit_id,
+                func.count().label("n"),
+                func.max(VersionRow.id).label("newest"),
+            )
+            .where(VersionRow.accepted.is_(True))
+            .group_by(VersionRow.unit_id)
+            .subquery()
+        )  # grouped first: one pass over the versions, then a join per unit
+        query = (
+            select(UnitRow.model, UnitRow.serial, accepted.c.n, accepted.c.newest)
+            .outerjoin(accepted, accepted.c.unit_id == UnitRow.id)
+            .where(UnitRow.model.is_not(None))
+            .order_by(UnitRow.model, UnitRow.serial)
+        )
+        if models is not None:
+            query = query.where(UnitRow.model.in_(list(models)))
+        per_model: dict[str, list[Any]] = defaultdict(list)
+        with self._store._tx() as s:
+            for model, serial, n, newest in s.execute(query):
+                per_model[model].append([serial, n or 0, newest])
+        return {m: hashlib.sha256(json.dumps(rows).encode()).hexdigest()
+                for m, rows in per_model.items()}  # fmt: skip
+
+    def current(self, models: Iterable[str] | None = None) -> dict[str, dict[str, Any]]:
+        """The current prior document of every model (or of ``models``) with units, computed
+        and stored where its inputs changed; a model without two accepted versions of one
+        unit gets none (absent)."""
+        digests = self.inputs(models)
+        out: dict[str, dict[str, Any]] = {}
+        stale = []
+        for model, digest in digests.items():
+            cached = self._cache.get(model)
+            if cached is not None and cached[0] == digest:
+                out[model] = cached[1]
+            else:
+                stale.append(model)
+        if not stale:
+            return {m: d for m, d in out.items() if d}
+        with self._lock:
+            stored = self._stored(stale)
+            todo = [m for m in stale if stored.get(m, (None,))[0] != digests[m]]
+            for m in stale:
+                if m not in todo:
+                    self._cache[m] = (digests[m], stored[m][1])
+                    out[m] = stored[m][1]
+            if todo:
+                documents = self._compute(todo, {m: stored.get(m) for m in todo}, digests)
+                for m in todo:
+                    self._cache[m] = (digests[m], documents.get(m) or {})
+                    out[m] = documents.get(m) or {}
+        return {m: d for m, d in out.items() if d}
+
+    def _stored(self, models: list[str]) -> dict[str, tuple[str, dict[str, Any], int]]:
+        """The newest stored prior of each of ``models``: (inputs, document, version)."""
+        newest = (
+            select(PriorRow.model, func.max(PriorRow.version).label("v"))
+            .where(PriorRow.model.in_(models))
+            .group_by(PriorRow.model)
+            .subquery()
+        )
+        query = select(PriorRow).join(
+            newest, (newest.c.model == PriorRow.model) & (newest.c.v == PriorRow.version)
+        )
+        with self._store._tx() as s:
+            return {r.model: (r.inputs, r.document, r.version) for r in s.scalars(query)}
+
+    def _compute(
+        self,
+        models: list[str],
+        previous: dict[str, tuple[str, dict[str, Any], int] | None],
+        digests: dict[str, str],
+    ) -> dict[str, dict[str, Any]]:
+        """Compute and store the priors of ``models`` from their accepted versions (one query
+        for the versions, one transaction for the new rows)."""
+        from recal.fleet.compute import fleet_prior
+        from recal.fleet.history import VersionTable
+
+        names = coefficient_names()
+        query = (
+            select(
+                UnitRow.model,
+                UnitRow.serial,
+                VersionRow.at,
+                VersionRow.data[("document", "coefficients")],
+                VersionRow.data[("document", "uncertainty")],
+            )
+            .join(UnitRow, UnitRow.id == VersionRow.unit_id)
+            .where(VersionRow.accepted.is_(True), UnitRow.model.in_(models))
+            .order_by(UnitRow.model, UnitRow.serial, VersionRow.at)
+        )
+        rows: dict[str, dict[str, list[Any]]] = {m: defaultdict(list) for m in models}
+        with self._store._tx() as s:
+            for model, serial, at, coefficients, uncertainty in s.execute(query):
+                doc = {"coefficients": _json(coefficients), "uncertainty": _json(uncertainty)}
+                rows[model][serial].append((_utc(at), doc))
+        now = datetime.now(UTC)
+        out: dict[str, dict[str, Any]] = {}
+        new_rows = []
+        for model in models:
+            table = VersionTable.from_documents(names, rows[model])
+            if len(table.changes()) == 0:
+                out[model] = {}  # no unit with two accepted versions yet: no prior
+                continue
+            old = previous.get(model)
+            version = 1 if old is None else old[2] + 1
+            prior = fleet_prior(table, model, version=version,
+                                created_at=now.strftime("%Y-%m-%dT%H:%M:%SZ"),
+                                metadata={"source": "recal fleet shore",
+                                          "units": len(table.units),
+                                          "versions": len(table.unit)})  # fmt: skip
+            out[model] = prior.to_json_dict()
+            new_rows.append(PriorRow(model=model, version=version, created_at=now,
+                                     inputs=digests[model], document=out[model]))  # fmt: skip
+        if new_rows:
+            try:
+                with self._store._tx(write=True) as s:
+                    s.add_all(new_rows)
+            except StoreError as exc:
+                if not isinstance(exc.__cause__, IntegrityError):
+                    raise
+                # another shore process stored these versions meanwhile: theirs stand
+                stored = self._stored([r.model for r in new_rows])
+                for r in new_rows:
+                    out[r.model] = stored[r.model][1]
+        return out
+
+
+def _json(value: Any) -> Any:
+    """A JSON value selected out of a document (SQLite may hand it back as text)."""
+    if isinstance(value, str):
+        try:
+            return json.loads(value)
+        except ValueError:
+            return None
+    return value
+
+
+def _utc(value: datetime) -> datetime:
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)

@@ -1,0 +1,111 @@
+"""Conversions between what callers hold and what the rows store: JSON-ready values, UTC
+times, position columns, calibration records and slews packed as float64 bytes."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+from service.store.records import CalibrationRecord, SlewRecord
+from service.store.rows import POSITION_COLUMNS, CalibrationRow, PositionRow, SlewRow
+
+
+def plain(obj: Any) -> Any:
+    """JSON-ready copy: numpy to Python, NaN/inf to None (PostgreSQL's json rejects NaN)."""
+    if isinstance(obj, Mapping):
+        return {str(k): plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | np.ndarray):
+        return [plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, datetime):
+        return obj.isoformat()
+    return obj
+
+
+def dumps(obj: Any) -> str:
+    return json.dumps(plain(obj), allow_nan=False)
+
+
+def as_utc(value: datetime) -> datetime:
+    """SQLite hands back naive datetimes; everything stored is UTC."""
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+def finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def columns_of(rows: Sequence[PositionRow]) -> dict[str, np.ndarray]:
+    """The columns present in every row (stored ones, then ``extra`` ones), NULL as NaN."""
+    if not rows:
+        return {}
+    cols: dict[str, np.ndarray] = {}
+    for name in POSITION_COLUMNS:
+        values = [getattr(r, name) for r in rows]
+        if all(v is not None for v in values):
+            cols[name] = np.array(values, dtype=float)
+    shared = [k for k in rows[0].extra if all(k in r.extra for r in rows)]
+    for name in shared:
+        cols[name] = np.array(
+            [math.nan if r.extra[name] is None else r.extra[name] for r in rows], dtype=float
+        )
+    return cols
+
+
+def record_of(row: CalibrationRow) -> CalibrationRecord:
+    return CalibrationRecord(
+        version=row.id,
+        created_at=as_utc(row.created_at),
+        trigger=row.trigger,
+        method=row.method,
+        accepted=row.accepted,
+        reasons=list(row.reasons),
+        document=row.document,
+        positions_used=list(row.positions_used),
+        prior_version=row.prior_version,
+    )
+
+
+def slew_rows(
+    slews: Sequence[tuple[int, int, Any]],
+    ids: list[int],
+    previous_id: int | None,
+    period_s: float | None,
+) -> list[SlewRow]:
+    """Rows for ``(first row, second row, ReducedSlew)`` between windows stored as ``ids``
+    (row -1: ``previous_id``; a slew without its first window or a period is skipped)."""
+    out = []
+    for a, b, r in slews:
+        first = previous_id if a < 0 else ids[a]
+        if first is None or period_s is None:
+            continue
+        data = None
+        G = 0
+        if r.groups is not None:
+            counts, S, W, C = r.groups
+            G = int(counts.shape[0])
+            body = np.column_stack([counts, S, W, C]).astype(np.float64)
+            data = np.concatenate([np.asarray(r.reference, np.float64), body.ravel()]).tobytes()
+        out.append(SlewRow(first_id=first, second_id=ids[b], period_s=float(period_s),
+                           samples=int(r.samples), groups=G, data=data,
+                           dropped=r.dropped))  # fmt: skip
+    return out
+
+
+def slew_record(row: SlewRow) -> SlewRecord:
+    ref = groups = None
+    if row.data is not None:
+        v = np.frombuffer(row.data, dtype=np.float64)
+        ref, body = v[:3].copy(), v[3:].reshape(row.groups, 10)
+        groups = (body[:, 0].astype(np.int64), body[:, 1:4].copy(), body[:, 4:7].copy(),
+                  body[:, 7:10].copy())  # fmt: skip
+    return SlewRecord(row.first_id, row.second_id, row.period_s, row.samples, ref, groups,
+                      row.dropped)  # fmt: skip
