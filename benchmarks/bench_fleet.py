@@ -535,7 +535,7 @@ def bulk_load(url: str, fleet: Fleet, units: list[UnitPlan], chunk_days: int) ->
         for definition in definitions.values():
             conn.execute(definition)
         conn.execute("DROP TABLE bench_window_tpl, bench_event_tpl")
-        conn.execute(UNIT_COUNTS, (lo, hi))  # what ingest keeps on the unit's row (0002)
+        conn.execute(UNIT_COUNTS, (lo, hi))  # what ingest keeps on the unit's row (0003)
         conn.execute("UPDATE fleet_units SET last_contact = %s WHERE id BETWEEN %s AND %s",
                      (START + timedelta(days=fleet.days), lo, hi))  # fmt: skip
         t_index = time.perf_counter() - t2

@@ -44,7 +44,7 @@ class UnitRow(FleetBase):
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     last_contact: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
-    #: kept by ingest (migration 0002), so the fleet's list reads no vessel rows
+    #: kept by ingest (migration 0003), so the fleet's list reads no vessel rows
     n_versions: Mapped[int] = mapped_column(Integer, server_default="0")
     n_windows: Mapped[int] = mapped_column(BigInteger, server_default="0")
     #: the newest accepted version stored
@@ -64,7 +64,7 @@ class _VesselRow:
 
 def _key_and_time(name: str) -> tuple[UniqueConstraint, Index]:
     """The key of a kind's table, and the index of the per-unit time queries: with the vessel
-    row id, so where a time range starts in id order is an index-only scan (migration 0003)."""
+    row id, so where a time range starts in id order is an index-only scan (migration 0004)."""
     return (
         UniqueConstraint("unit_id", "vessel_id", name=f"uq_{name}_key"),
         Index(f"ix_{name}_unit_at_id", "unit_id", "at", "vessel_id"),

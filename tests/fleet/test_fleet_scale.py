@@ -1,5 +1,5 @@
 """The shore at scale (issue 28): the units' counts kept by ingest and filled in by migration
-0002, the fleet-wide re-analysis in parallel processes, and the benchmark's generated batches
+0003, the fleet-wide re-analysis in parallel processes, and the benchmark's generated batches
 (benchmarks/bench_fleet.py) as the shore reads them."""
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ def test_unit_counts_kept_by_ingest_and_filled_in_by_the_migration(fleet_store, 
     ]
     from alembic import command
 
-    with fleet_store._engine.begin() as conn:  # back to 0001 and up again: counted afresh
-        command.downgrade(alembic_config(conn), "0001")
+    with fleet_store._engine.begin() as conn:  # back to 0002 and up again: counted afresh
+        command.downgrade(alembic_config(conn), "0002")
         command.upgrade(alembic_config(conn), "head")
     assert fleet_store.units() == kept
 
