@@ -117,7 +117,11 @@ class IngestRow(FleetBase):
     """One acknowledged batch: what the link carried (bytes per day) and what it stored."""
 
     __tablename__ = "fleet_ingest_log"
-    __table_args__ = (Index("ix_fleet_ingest_log_unit_at", "unit_id", "at"),)
+    __table_args__ = (
+        Index("ix_fleet_ingest_log_unit_at", "unit_id", "at"),
+        # the fleet's last days of traffic (the overview's link), migration 0005
+        Index("ix_fleet_ingest_log_at", "at"),
+    )
 
     id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
     unit_id: Mapped[int] = mapped_column(ForeignKey("fleet_units.id", ondelete="CASCADE"))
