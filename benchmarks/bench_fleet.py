@@ -2,8 +2,8 @@
 years, its ingest throughput, storage, the p95 of the API's queries and the fleet-wide
 re-analysis on 1 and 2 processes.
 
-    python benchmarks/bench_fleet.py                       # 1000 units x 5 years (hours of disk)
-    python benchmarks/bench_fleet.py --quick               # 4 units x 60 days: a smoke run
+    python benchmarks/bench_fleet.py                       # 1000 units x 5 years: ~51 GB, ~2 h
+    python benchmarks/bench_fleet.py --quick               # 4 units x 60 days: 30 s
     python benchmarks/bench_fleet.py --database-url postgresql+psycopg://... --keep
 
 Without ``--database-url`` a throwaway PostgreSQL database is created (on
@@ -22,9 +22,9 @@ dropped at the end (``--keep`` leaves it).
   bytes), the information trigger's checks, the detector and noise-floor notes; a job's start,
   end and its version's verdict on the days of a version.
 * Calibration versions: one every 2 to 6 weeks (uniform), a quarter of them rejected by the
-  gate: about 87 a unit in 5 years (65 accepted). Each is the real document of ``recal demo --vessel``
-  (``benchmarks/data/fleet_version.json``, 29.8 kB: covariance, observability, residuals,
-  navigation) with the unit's coefficients and 1-sigma (a random walk of
+  gate: about 87 a unit in 5 years (65 accepted). Each is the real document of ``recal demo
+  --vessel`` (``benchmarks/data/fleet_version.json``, 29.8 kB: covariance, observability,
+  residuals, navigation) with the unit's coefficients and 1-sigma (a random walk of
   recal.fleet.simulate, 1 % of units ageing five times faster).
 * Sessions: a daemon start every 14 days (port calls, power cycles).
 * Ingest log: a batch every 4 hours (a satellite link billed by session).
