@@ -1,13 +1,17 @@
-"""``recal fleet serve|add-unit --config shore.toml``: the fleet's shore service (docs/fleet.md).
+"""``recal fleet serve|add-unit|reanalyse --config shore.toml``: the fleet's shore service
+(docs/fleet.md).
 
 ``serve`` upgrades the shore's schema and serves its API until SIGINT/SIGTERM; ``add-unit
 SERIAL`` registers a unit and prints its token alone on one line of stdout (the shore keeps
-only its hash: it cannot be shown again; ``--rotate`` issues a new one).
+only its hash: it cannot be shown again; ``--rotate`` issues a new one). ``reanalyse``
+re-analyses every unit's history in parallel processes (service.fleet.reanalysis) and prints
+the result as JSON.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from service.cli.serve import _SETTINGS, _SettingsHelpFormatter
@@ -53,6 +57,22 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     q.add_argument("--rotate", action="store_true",
                    help="the unit is registered: issue a new token (the old one stops working)")  # fmt: skip
     q.set_defaults(func=run_add_unit)
+    q = actions.add_parser(
+        "reanalyse",
+        help="re-analyse every unit's history: fleet prior outliers, drift tests (JSON)",
+        description="Re-analyse every unit's history in parallel processes: per model the "
+        "fleet prior's rates and each unit's outlier statistic, per unit a drift test of its "
+        "newest windows against its current version. Prints JSON (or writes it to -o).",
+    )
+    q.add_argument("--config", required=True, metavar="FILE.toml", help=_CONFIG_HELP)
+    q.add_argument("--workers", type=int, default=os.cpu_count() or 1, metavar="N",
+                   help="processes reading and testing units (default: the CPUs)")  # fmt: skip
+    q.add_argument("--model", help="only the units of this model")
+    q.add_argument("--windows", type=int, default=200, metavar="N",
+                   help="newest windows since a unit's current version its drift test reads "
+                   "(default 200)")  # fmt: skip
+    q.add_argument("-o", "--output", metavar="OUT.json", help="write the JSON here, not stdout")
+    q.set_defaults(func=run_reanalyse)
     return p
 
 
@@ -103,4 +123,36 @@ def run_add_unit(args: argparse.Namespace) -> int:
     what = "new token of" if args.rotate else "registered"
     print(f"recal fleet: {what} unit {args.serial}; its token follows on stdout", file=sys.stderr)
     print(token)
+    return 0
+
+
+def run_reanalyse(args: argparse.Namespace) -> int:
+    import json
+    import time
+
+    from service.cli.errors import CliInputError
+    from service.db import StoreError
+    from service.fleet.reanalysis import reanalyse
+
+    if args.workers < 1 or args.windows < 2:
+        raise CliInputError("--workers must be at least 1 and --windows at least 2")
+    settings = _settings(args)
+    _open(settings).close()  # the schema at this code's revision, or a one-line error
+    started = time.perf_counter()
+    try:
+        report = reanalyse(settings.database_url, workers=args.workers,
+                           model=args.model, windows=args.windows)  # fmt: skip
+    except StoreError as exc:
+        raise CliInputError(str(exc)) from None
+    text = json.dumps(report, indent=1) + "\n"
+    if args.output:
+        with open(args.output, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    else:
+        sys.stdout.write(text)
+    flagged = sum(u["outlier"] for u in report["units"])
+    alarms = sum(u["drift_alarm"] for u in report["units"])
+    print(f"recal fleet: re-analysed {len(report['units'])} units on {args.workers} process(es) "
+          f"in {time.perf_counter() - started:.1f} s: {flagged} outliers, {alarms} drift alarms",
+          file=sys.stderr)  # fmt: skip
     return 0

@@ -44,6 +44,11 @@ class UnitRow(FleetBase):
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     last_contact: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    #: kept by ingest (migration 0003), so the fleet's list reads no vessel rows
+    n_versions: Mapped[int] = mapped_column(Integer, server_default="0")
+    n_windows: Mapped[int] = mapped_column(BigInteger, server_default="0")
+    #: the newest accepted version stored
+    current_version: Mapped[int | None] = mapped_column(BigInteger)
 
 
 class _VesselRow:
@@ -58,10 +63,11 @@ class _VesselRow:
 
 
 def _key_and_time(name: str) -> tuple[UniqueConstraint, Index]:
-    """The key of a kind's table, and the index of the per-unit time queries."""
+    """The key of a kind's table, and the index of the per-unit time queries: with the vessel
+    row id, so where a time range starts in id order is an index-only scan (migration 0004)."""
     return (
         UniqueConstraint("unit_id", "vessel_id", name=f"uq_{name}_key"),
-        Index(f"ix_{name}_unit_at", "unit_id", "at"),
+        Index(f"ix_{name}_unit_at_id", "unit_id", "at", "vessel_id"),
     )
 
 
@@ -111,7 +117,11 @@ class IngestRow(FleetBase):
     """One acknowledged batch: what the link carried (bytes per day) and what it stored."""
 
     __tablename__ = "fleet_ingest_log"
-    __table_args__ = (Index("ix_fleet_ingest_log_unit_at", "unit_id", "at"),)
+    __table_args__ = (
+        Index("ix_fleet_ingest_log_unit_at", "unit_id", "at"),
+        # the fleet's last days of traffic (the overview's link), migration 0005
+        Index("ix_fleet_ingest_log_at", "at"),
+    )
 
     id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
     unit_id: Mapped[int] = mapped_column(ForeignKey("fleet_units.id", ondelete="CASCADE"))

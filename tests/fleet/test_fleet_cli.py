@@ -140,3 +140,18 @@ def test_fleet_serve_runs_the_migrations_serves_and_stops_cleanly(tmp_path) -> N
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err.decode()
+
+
+def test_reanalyse_prints_json_and_says_what_it_did(tmp_path, capsys) -> None:
+    url = f"sqlite:///{tmp_path / 'fleet.db'}"
+    config = str(shore_toml(tmp_path, url))
+    assert main(["fleet", "add-unit", "SN-1", "--config", config, "--model", "M"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "re.json"
+    assert main(["fleet", "reanalyse", "--config", config, "--workers", "1", "-o", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert [u["unit"] for u in report["units"]] == ["SN-1"] and report["workers"] == 1
+    assert report["units"][0]["versions"] == 0 and report["units"][0]["drift"] is None
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "re-analysed 1 units on 1 process(es)" in err
+    assert main(["fleet", "reanalyse", "--config", config, "--workers", "0"]) == 2
