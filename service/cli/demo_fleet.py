@@ -117,6 +117,9 @@ def run_fleet(args: argparse.Namespace) -> int:
         services = []
         shore_counts = _shore_counts(store)
         _print_summary(store, counts, shore_counts, shore, admin, drained, time.monotonic() - t0)
+        if not args.serve:  # the shore stops with the demo: say how to look at its dashboard
+            print(f"(the shore stops now: recal demo --fleet --serve keeps it up; the fleet's "
+                  f"database stays in {folder / 'fleet.db'})")  # fmt: skip
         if args.serve:
             print(f"\nserving the shore until Ctrl-C: {shore}/fleet/dashboard", flush=True)
             try:
