@@ -2,7 +2,8 @@
 
 A process pool was the first design, and it failed the way a vessel fails it: a worker killed by
 the OOM killer left either a future that never completed or a pool that refused all later work,
-and nothing noticed. Here every job gets its own spawned process and a pipe for its result. One
+and nothing noticed. Here every job gets its own process (forked from a fork server that has the engine imported)
+and a pipe for its result. One
 long-lived supervisor thread starts the processes and watches them, and reports exactly one
 :class:`JobEnd` per job:
 
@@ -58,17 +59,31 @@ class JobEnd:
         return self.status == "ok"
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's (the pid was reused): not ours any more
+        return False
+    return True
+
+
 def die_with_parent(parent: int) -> None:
     """In a child process: kill this process's whole group as soon as ``parent`` (the pid of
-    the process that started it) is no longer its parent, which is at once if it died while
-    this one was still starting up.
+    the daemon that asked for it) is gone, or this process's parent changes (its fork server
+    exited with the daemon), which is at once if either died while this one was starting up.
 
     Call it in a process that leads its own group (``os.setpgid(0, 0)``) so that the group is
     the job and its children, nothing else.
     """
 
+    # Forked by the daemon's fork server, this process's parent is that server, which exits
+    # when the daemon does: either the parent changing or the daemon's pid going away ends it.
+    first = os.getppid()
+
     def watch() -> None:
-        while os.getppid() == parent:
+        while os.getppid() == first and _alive(parent):
             time.sleep(PARENT_CHECK_S)
         os.killpg(0, signal.SIGKILL)
 
@@ -121,12 +136,23 @@ class _Running:
     done: tuple[float, float] | None = None  # (done, total) last reported by the worker
 
 
+#: Modules the fork server imports once for every job worker (the recalibration job's).
+WORKER_PRELOAD = ("service.recalibration",)
+
+
 class JobRunner:
     """Runs one job at a time in its own process; see the module docstring."""
 
-    def __init__(self, timeout_s: float = 1800.0, start_method: str = "spawn") -> None:
+    def __init__(self, timeout_s: float = 1800.0, start_method: str = "forkserver") -> None:
         self.timeout_s = float(timeout_s)
         self._ctx = multiprocessing.get_context(start_method)
+        if start_method == "forkserver":
+            # A fresh interpreter per job (spawn) imported numpy, scipy and the engine every
+            # time: about 2 s of CPU before the job's first step. The fork server imports them
+            # once and forks each worker from that clean, single-threaded process, so a worker
+            # is still fresh (no daemon threads or locks inherited) and starts in milliseconds.
+            # It exits when the daemon does (its pipe from the daemon closes).
+            self._ctx.set_forkserver_preload(list(WORKER_PRELOAD))
         self._requests: queue.Queue[tuple[int, Callable[..., Any], tuple, Callable] | None] = (
             queue.Queue()
         )
