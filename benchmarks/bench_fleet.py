@@ -69,8 +69,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from recal import CoefficientSet, simulate_fleet, simulate_positions  # noqa: E402
-from recal.fleet.history import MONTH_DAYS, _flat, is_relative  # noqa: E402
+from recal.fleet.history import MONTH_DAYS, _flat, flat_version, is_relative  # noqa: E402
 from service.fleet.batch import read_batch  # noqa: E402
+from service.fleet.priors import coefficient_names  # noqa: E402
 from service.fleet.reanalysis import flat_names  # noqa: E402
 from service.fleet.store import FleetStore, Unit, token_hash  # noqa: E402
 
@@ -522,13 +523,14 @@ def bulk_load(url: str, fleet: Fleet, units: list[UnitPlan], chunk_days: int) ->
         t1 = time.perf_counter()
         with conn.cursor().copy(
             "COPY fleet_versions (unit_id, vessel_id, at, received_at, data, accepted, trigger,"
-            " method) FROM STDIN"
+            " method, flat) FROM STDIN"
         ) as cp:
             for u in units:
                 for number, at, ok, text in u.versions:
                     doc = json.loads(text)
+                    flat = json.dumps(flat_version(doc["document"], coefficient_names()))
                     cp.write_row((u.index + 1, number, at, at + timedelta(hours=1), text, ok,
-                                  doc["trigger"], doc["method"]))  # fmt: skip
+                                  doc["trigger"], doc["method"], flat))  # fmt: skip
                     counts["version"] += 1
         t_versions = time.perf_counter() - t1
         t2 = time.perf_counter()
@@ -699,6 +701,106 @@ def reanalysis(url: str, workers: list[int], limit_units: int | None) -> None:
         print(f"  speed-up 1 -> 2 workers: {took[1] / took[2]:.2f}x")
 
 
+def load_versions(url: str, fleet: Fleet) -> None:
+    """Only the units and their versions (COPY, with the flat part ingest keeps): ``--prior``."""
+    import psycopg
+
+    with psycopg.connect(psycopg_url(url), autocommit=True) as conn:
+        add_units(conn, fleet)
+        t0 = time.perf_counter()
+        with conn.cursor().copy(
+            "COPY fleet_versions (unit_id, vessel_id, at, received_at, data, accepted, trigger,"
+            " method, flat) FROM STDIN"
+        ) as cp:
+            for u in fleet.units:
+                for number, at, ok, text in u.versions:
+                    doc = json.loads(text)
+                    flat = json.dumps(flat_version(doc["document"], coefficient_names()))
+                    cp.write_row((u.index + 1, number, at, at + timedelta(hours=1), text, ok,
+                                  doc["trigger"], doc["method"], flat))  # fmt: skip
+        conn.execute(UNIT_COUNTS, (1, len(fleet.units)))
+        conn.execute("VACUUM ANALYZE")
+    print(f"versions loaded by COPY in {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def prior_from_documents(store: FleetStore, models: list[str]) -> dict[str, dict[str, Any]]:
+    """The fleet prior as service.fleet.priors computed it before migration 0006: from every
+    accepted version's document (its coefficients and uncertainty selected out of it)."""
+    from collections import defaultdict
+
+    from sqlalchemy import select
+
+    from recal.fleet.compute import fleet_prior
+    from recal.fleet.history import VersionTable
+    from service.fleet.schema import UnitRow, VersionRow
+
+    names = coefficient_names()
+    query = (
+        select(UnitRow.model, UnitRow.serial, VersionRow.at,
+               VersionRow.data[("document", "coefficients")],
+               VersionRow.data[("document", "uncertainty")])
+        .join(UnitRow, UnitRow.id == VersionRow.unit_id)
+        .where(VersionRow.accepted.is_(True), UnitRow.model.in_(models))
+        .order_by(UnitRow.model, UnitRow.serial, VersionRow.at)
+    )  # fmt: skip
+    rows: dict[str, dict[str, list[Any]]] = {m: defaultdict(list) for m in models}
+    with store._tx() as s:
+        for model, serial, at, coefficients, uncertainty in s.execute(query):
+            rows[model][serial].append(
+                (at.astimezone(UTC), {"coefficients": coefficients, "uncertainty": uncertainty})
+            )
+    out = {}
+    for model in models:
+        table = VersionTable.from_documents(names, rows[model])
+        out[model] = fleet_prior(table, model, created_at="-").to_json_dict()
+    return out
+
+
+def prior_recompute(url: str, runs: int) -> None:
+    """The fleet prior of every model recomputed (what the first request after a new accepted
+    version pays), from the documents (before 0006) and from ``fleet_versions.flat`` (after),
+    alternately ``runs`` times; then migration 0006's backfill of the rows stored."""
+    from alembic import command
+    from sqlalchemy import delete, func, select
+
+    from service.fleet.migrations import alembic_config
+    from service.fleet.priors import FleetPriors
+    from service.fleet.schema import PriorRow, VersionRow
+
+    store = FleetStore(url)
+    with store._tx() as s:
+        accepted = s.scalar(select(func.count()).where(VersionRow.accepted.is_(True)))
+        stored = s.scalar(select(func.count()).select_from(VersionRow))
+    before, after = [], []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        old = prior_from_documents(store, list(MODELS))
+        before.append(time.perf_counter() - t0)
+        with store._tx(write=True) as s:
+            s.execute(delete(PriorRow))
+        t0 = time.perf_counter()
+        new = FleetPriors(store).current(list(MODELS))  # computed and stored
+        after.append(time.perf_counter() - t0)
+    same = all(
+        {k: v for k, v in new[m].items() if k not in ("created_at", "version", "metadata")}
+        == {k: v for k, v in old[m].items() if k not in ("created_at", "version", "metadata")}
+        for m in MODELS
+    )
+    print(f"fleet prior recomputed, {len(MODELS)} models, {accepted:,} accepted versions, "
+          f"{runs} runs each (median, max):\n"
+          f"  from the documents (before 0006):   {np.median(before):6.2f} s  {max(before):6.2f} s\n"
+          f"  from fleet_versions.flat (after):   {np.median(after):6.2f} s  {max(after):6.2f} s\n"
+          f"  speed-up {np.median(before) / np.median(after):.0f}x; same priors: {same}",
+          flush=True)  # fmt: skip
+    with store._engine.connect() as conn, conn.begin():
+        command.downgrade(alembic_config(conn), "0005")
+    t0 = time.perf_counter()
+    store.create_schema()
+    print(f"migration 0006 (add and fill fleet_versions.flat of {stored:,} versions): "
+          f"{time.perf_counter() - t0:.1f} s", flush=True)  # fmt: skip
+    store.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--units", type=int, default=1000)
@@ -717,6 +819,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra", action="store_true",
                     help="also /fleet/overview and /fleet/prior")  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="4 units x 60 days, 3 runs a query")
+    ap.add_argument("--prior", type=int, default=0, metavar="RUNS",
+                    help="only the versions: time the fleet prior's recomputation RUNS times "
+                         "from the documents and from fleet_versions.flat")  # fmt: skip
     args = ap.parse_args(argv)
     if args.quick:
         args.units, args.years, args.ingest_units, args.repeat = 4, 60 / 365.25, 2, 3
@@ -725,6 +830,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet: {args.units} units x {args.years:g} years; load average "
           f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}", flush=True)  # fmt: skip
     fleet = Fleet(args.units, args.years)
+    if args.prior:
+        with database(args.database_url, args.keep) as url:
+            for u in fleet.units:
+                fleet.plan(u)
+            FleetStore(url).create_schema()
+            load_versions(url, fleet)
+            prior_recompute(url, args.prior)
+        return 0
     with database(args.database_url, args.keep) as url, tempfile.TemporaryDirectory() as tmp:
         if not args.skip_load:
             t0 = time.perf_counter()

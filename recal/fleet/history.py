@@ -119,6 +119,41 @@ class VersionTable:
                                np.reshape(sigma, (-1, len(names))))  # fmt: skip
         return cls.from_histories(names, histories)
 
+    @classmethod
+    def from_flat(
+        cls,
+        names: Sequence[str],
+        versions: Mapping[str, Sequence[tuple[datetime, Mapping[str, Any]]]],
+    ) -> VersionTable:
+        """From each unit's accepted versions as (time, :func:`flat_version` of the document):
+        the same table as :meth:`from_documents` of the documents, without them."""
+        histories = {}
+        for unit, rows in versions.items():
+            months = [t.timestamp() / 86400.0 / MONTH_DAYS for t, _ in rows]
+            values = [_by_name(flat.get("coefficients"), names) for _, flat in rows]
+            sigma = [_by_name(flat.get("uncertainty"), names) for _, flat in rows]
+            histories[unit] = (months, np.reshape(values, (-1, len(names))),
+                               np.reshape(sigma, (-1, len(names))))  # fmt: skip
+        return cls.from_histories(names, histories)
+
+
+def flat_version(document: Mapping[str, Any], names: Sequence[str]) -> dict[str, Any]:
+    """What :meth:`VersionTable.from_documents` reads of one version's document, by flat name:
+    ``{"coefficients": {name: value}, "uncertainty": {name: 1-sigma}}``, the finite ones only
+    (plain JSON: the shore keeps it beside the document, migration 0006)."""
+    out = {}
+    for section in ("coefficients", "uncertainty"):
+        found = document.get(section) if isinstance(document, Mapping) else None
+        flat = _flat(found if isinstance(found, Mapping) else {}, names)
+        out[section] = {n: v for n, v in zip(names, flat, strict=True) if np.isfinite(v)}
+    return out
+
+
+def _by_name(section: Any, names: Sequence[str]) -> list[float]:
+    """A :func:`flat_version` section by ``names`` (NaN where absent)."""
+    section = section if isinstance(section, Mapping) else {}
+    return [float(section.get(n, np.nan)) for n in names]
+
 
 def _flat(section: Mapping[str, Any], names: Sequence[str]) -> list[float]:
     """Section 5 layout (``{"gyro": {"scale": [..], "misalignment": {..}}}``) by flat name."""

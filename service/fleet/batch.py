@@ -15,6 +15,9 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
+from recal.fleet.history import flat_version
+from service.fleet.priors import coefficient_names
+
 #: The wire format this shore reads.
 FORMAT = 1
 #: Largest vessel row id (PostgreSQL BIGINT).
@@ -150,6 +153,7 @@ def _version(ident: int, data: dict[str, Any]) -> dict[str, Any]:
         "accepted": data["accepted"],
         "trigger": _name(data, "trigger", required=False),
         "method": _name(data, "method", required=False),
+        "flat": flat_version(data.get("document") or {}, coefficient_names()),
     }
 
 

@@ -1,8 +1,9 @@
 """The fleet prior of each model, computed on shore from the stored accepted versions.
 
-:func:`recal.fleet.fleet_prior` does the numerics; this module feeds it the shore's version
-documents (:meth:`recal.fleet.VersionTable.from_documents`, by the conventions' flat names of
-the seed terms) and keeps every prior it computed in ``fleet_priors``. A prior's ``version``
+:func:`recal.fleet.fleet_prior` does the numerics; this module feeds it the shore's accepted
+versions' coefficients and 1-sigma by the conventions' flat names of the seed terms, as ingest
+kept them beside each document (``fleet_versions.flat``, :func:`recal.fleet.history.flat_version`,
+migration 0006; :meth:`recal.fleet.VersionTable.from_flat`), never the 30 kB documents, and keeps every prior it computed in ``fleet_priors``. A prior's ``version``
 is raised only when its inputs changed: the inputs are digested per model as (unit, accepted
 versions stored, the newest's shore row id) -- versions are stored once and never changed, so
 the digest changes exactly when an accepted version arrives or a unit changes model. Asking
@@ -14,6 +15,7 @@ Every call runs a fixed number of SQL statements, whatever the number of units a
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import threading
@@ -34,10 +36,15 @@ NO_MODEL = None
 
 def coefficient_names() -> list[str]:
     """The conventions' flat names of the seed terms (``gyro.scale.Kx`` ... ``accel.quadratic.K2z``)."""
+    return list(_coefficient_names())
+
+
+@functools.cache
+def _coefficient_names() -> tuple[str, ...]:
     from recal.model.plugins import SENSORS
     from recal.model.terms import seed_terms
 
-    return [f"{t.name}.{p}" for s in SENSORS for t in seed_terms(s) for p in t.params]
+    return tuple(f"{t.name}.{p}" for s in SENSORS for t in seed_terms(s) for p in t.params)
 
 
 class FleetPriors:
@@ -127,31 +134,40 @@ class FleetPriors:
         """Compute and store the priors of ``models`` from their accepted versions (one query
         for the versions, one transaction for the new rows)."""
         from recal.fleet.compute import fleet_prior
-        from recal.fleet.history import VersionTable
+        from recal.fleet.history import VersionTable, flat_version
 
         names = coefficient_names()
         query = (
-            select(
-                UnitRow.model,
-                UnitRow.serial,
-                VersionRow.at,
-                VersionRow.data[("document", "coefficients")],
-                VersionRow.data[("document", "uncertainty")],
-            )
+            select(UnitRow.model, UnitRow.serial, VersionRow.at, VersionRow.id, VersionRow.flat)
             .join(UnitRow, UnitRow.id == VersionRow.unit_id)
             .where(VersionRow.accepted.is_(True), UnitRow.model.in_(models))
             .order_by(UnitRow.model, UnitRow.serial, VersionRow.at)
         )
         rows: dict[str, dict[str, list[Any]]] = {m: defaultdict(list) for m in models}
+        missing: dict[int, tuple[str, str, int]] = {}  # rows stored without it (not by ingest)
         with self._store._tx() as s:
-            for model, serial, at, coefficients, uncertainty in s.execute(query):
-                doc = {"coefficients": _json(coefficients), "uncertainty": _json(uncertainty)}
-                rows[model][serial].append((_utc(at), doc))
+            for model, serial, at, row_id, flat in s.execute(query):
+                if flat is None:
+                    missing[row_id] = (model, serial, len(rows[model][serial]))
+                rows[model][serial].append((_utc(at), flat))
+            if missing:  # their documents: one more query, only then
+                doc = VersionRow.data["document"]
+                found = s.execute(
+                    select(VersionRow.id, doc["coefficients"], doc["uncertainty"]).where(
+                        VersionRow.id.in_(list(missing))
+                    )
+                )
+                for row_id, coefficients, uncertainty in found:
+                    model, serial, k = missing[row_id]
+                    document = {"coefficients": _json(coefficients),
+                                "uncertainty": _json(uncertainty)}  # fmt: skip
+                    rows[model][serial][k] = (rows[model][serial][k][0],
+                                              flat_version(document, names))  # fmt: skip
         now = datetime.now(UTC)
         out: dict[str, dict[str, Any]] = {}
         new_rows = []
         for model in models:
-            table = VersionTable.from_documents(names, rows[model])
+            table = VersionTable.from_flat(names, rows[model])
             if len(table.changes()) == 0:
                 out[model] = {}  # no unit with two accepted versions yet: no prior
                 continue

@@ -99,6 +99,9 @@ class VersionRow(_VesselRow, FleetBase):
     accepted: Mapped[bool] = mapped_column(Boolean)
     trigger: Mapped[str | None] = mapped_column(String(64))
     method: Mapped[str | None] = mapped_column(String(64))
+    #: what the fleet prior reads of the document (recal.fleet.history.flat_version by the
+    #: conventions' flat names, about 2 kB), kept at ingest (migration 0006)
+    flat: Mapped[dict | None] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
 
 
 class EventRow(_VesselRow, FleetBase):

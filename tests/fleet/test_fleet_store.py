@@ -3,6 +3,8 @@ vessel's schema, units and their tokens."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
@@ -93,3 +95,34 @@ def test_bad_database_urls_are_one_line_errors() -> None:
         with pytest.raises(StoreError, match=says) as err:
             FleetStore(url)
         assert "\n" not in str(err.value)
+
+
+def test_migration_0006_fills_the_flat_part_of_the_versions_stored_before(
+    fleet_store: FleetStore, wire, simulated_fleet
+) -> None:
+    """Versions stored before 0006 get their flat part (in batches), as ingest keeps it now."""
+    from alembic import command
+    from sqlalchemy import select
+
+    from recal.fleet.history import flat_version
+    from service.fleet.batch import read_batch
+    from service.fleet.migrations import alembic_config
+    from service.fleet.priors import coefficient_names
+    from service.fleet.schema import VersionRow
+
+    sim = simulated_fleet(units=3)
+    for serial, rows in sim["units"].items():
+        fleet_store.add_unit(serial, "KVH-1750")
+        body = json.dumps(wire.batch(serial, rows)).encode()
+        fleet_store.ingest(fleet_store.unit_by_serial(serial), read_batch(body, None, 10**8), 0)
+    with fleet_store._engine.connect() as conn, conn.begin():
+        command.downgrade(alembic_config(conn), "0005")
+    assert fleet_store.schema_revision() == "0005"
+    fleet_store.create_schema()
+    assert fleet_store.schema_revision() == head()
+    names = coefficient_names()
+    with fleet_store._tx() as s:
+        found = s.execute(select(VersionRow.data, VersionRow.flat)).all()
+    assert len(found) > 10
+    for data, flat in found:
+        assert flat == flat_version(data["document"], names) and flat["coefficients"]

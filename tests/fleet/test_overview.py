@@ -215,3 +215,45 @@ def test_the_sync_client_reports_its_backlog(tmp_path) -> None:
         assert len(sent["rows"]) == 2 and sent["backlog"] == total - 2 == 3
     finally:
         store.close()
+
+
+def test_the_prior_reads_the_flat_column_as_it_would_the_documents(shore, fleet) -> None:
+    """``fleet_versions.flat`` (kept at ingest, migration 0006) gives the very table, and so
+    the very prior, that the accepted versions' documents give."""
+    import numpy as np
+
+    from recal.fleet.compute import fleet_prior
+    from recal.fleet.history import VersionTable, flat_version
+    from service.fleet.priors import coefficient_names
+    from service.fleet.schema import UnitRow, VersionRow
+
+    names = coefficient_names()
+    query = (
+        select(UnitRow.serial, VersionRow.at, VersionRow.data, VersionRow.flat)
+        .join(UnitRow, UnitRow.id == VersionRow.unit_id)
+        .where(VersionRow.accepted.is_(True), UnitRow.model == "KVH-1750")
+        .order_by(UnitRow.serial, VersionRow.at)
+    )
+    documents: dict[str, list[Any]] = {}
+    flats: dict[str, list[Any]] = {}
+    with shore.store._tx() as s:
+        for serial, at, data, flat in s.execute(query):
+            at = at.replace(tzinfo=UTC) if at.tzinfo is None else at
+            documents.setdefault(serial, []).append((at, data["document"]))
+            flats.setdefault(serial, []).append((at, flat))
+            assert flat == flat_version(data["document"], names)
+    assert sum(len(v) for v in flats.values()) > 50
+    old = VersionTable.from_documents(names, documents)
+    new = VersionTable.from_flat(names, flats)
+    assert old.units == new.units
+    for field in ("unit", "months", "values", "sigma"):
+        np.testing.assert_array_equal(getattr(new, field), getattr(old, field))
+    stamp = {"version": 1, "created_at": "2026-11-27T00:00:00Z"}
+    assert (
+        fleet_prior(new, "KVH-1750", **stamp).to_json_dict()
+        == fleet_prior(old, "KVH-1750", **stamp).to_json_dict()
+    )
+    served = FleetPriors(shore.store).current(["KVH-1750"])["KVH-1750"]
+    expected = fleet_prior(old, "KVH-1750", version=1, created_at=served["created_at"],
+                           metadata=served.get("metadata"))  # fmt: skip
+    assert served == expected.to_json_dict()
