@@ -17,21 +17,19 @@ import hashlib
 import hmac
 import re
 import secrets
-import threading
 from collections.abc import Iterator, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import Engine, case, create_engine, event, func, select, text, update
+from sqlalchemy import case, func, select, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
-from sqlalchemy.pool import StaticPool
 
-from service.db import StoreError, _as_utc, _dumps, _one_line, _sqlite_on_begin, _sqlite_on_connect
+from service.db import StoreError, _as_utc, _one_line
 from service.fleet.batch import Batch
 from service.fleet.schema import (
     KINDS,
@@ -41,6 +39,7 @@ from service.fleet.schema import (
     UnitRow,
     VersionRow,
 )
+from service.store.engine import make_engine
 
 #: A unit's serial: what ``recal fleet add-unit`` accepts.
 SERIAL = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_SERIAL - 1}}}")
@@ -88,37 +87,16 @@ class FleetStore:
                 "or sqlite:///fleet.db"
             ) from None
         self.url = parsed.render_as_string(hide_password=True)
-        self._lock: AbstractContextManager[Any] = nullcontext()
+        if parsed.get_backend_name() not in ("postgresql", "sqlite"):
+            raise StoreError(f"database URL {self.url}: the shore runs on PostgreSQL or SQLite")
         try:
-            self._engine = self._make_engine(parsed, connect_timeout_s)
+            # the vessel Store's connection rules: SQLite in WAL, writers BEGIN IMMEDIATE
+            self._engine, self._lock = make_engine(parsed, connect_timeout_s)
         except (NoSuchModuleError, ImportError) as exc:
             raise StoreError(f"cannot use database URL {self.url}: {_one_line(exc)}") from None
         self._read = sessionmaker(self._engine, expire_on_commit=False)
         self._write = sessionmaker(
             self._engine.execution_options(recal_write=True), expire_on_commit=False
-        )
-
-    def _make_engine(self, url: Any, connect_timeout_s: float) -> Engine:
-        # the vessel Store's connection rules: SQLite in WAL, writers BEGIN IMMEDIATE
-        backend = url.get_backend_name()
-        if backend == "sqlite":
-            memory = url.database in (None, "", ":memory:")
-            args: dict[str, Any] = {"check_same_thread": False, "timeout": 30.0}
-            kw: dict[str, Any] = {"json_serializer": _dumps, "connect_args": args}
-            if memory:
-                self._lock = threading.RLock()
-                kw["poolclass"] = StaticPool
-            engine = create_engine(url, **kw)
-            event.listen(engine, "connect", _sqlite_on_connect(wal=not memory))
-            event.listen(engine, "begin", _sqlite_on_begin)
-            return engine
-        if backend != "postgresql":
-            raise StoreError(f"database URL {self.url}: the shore runs on PostgreSQL or SQLite")
-        return create_engine(
-            url,
-            connect_args={"connect_timeout": max(1, round(connect_timeout_s))},
-            pool_pre_ping=True,
-            json_serializer=_dumps,
         )
 
     def close(self) -> None:
