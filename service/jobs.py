@@ -136,8 +136,10 @@ class _Running:
     done: tuple[float, float] | None = None  # (done, total) last reported by the worker
 
 
-#: Modules the fork server imports once for every job worker (the recalibration job's).
-WORKER_PRELOAD = ("service.recalibration",)
+#: Modules the fork server imports once for every job worker (service.job_server: the
+#: recalibration job's modules, and SIGTERM/SIGINT ignored so a group-wide stop cannot kill the
+#: server under a job that is starting).
+WORKER_PRELOAD = ("service.job_server",)
 
 
 class JobRunner:

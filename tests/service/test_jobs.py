@@ -240,14 +240,16 @@ def test_cancel_right_after_start_leaves_no_worker() -> None:
         assert not process.is_alive()
 
 
-def test_a_stop_signal_to_a_starting_worker_is_a_cancellation(runner: JobRunner) -> None:
-    """A running worker ignores SIGTERM; one still starting up dies of a group SIGTERM: that is
-    the service being stopped, reported as cancelled, not as a crash."""
+def test_a_stop_signal_to_a_starting_worker_does_not_end_it(runner: JobRunner) -> None:
+    """A group SIGTERM (systemctl stop) reaches the workers too. Forked from the fork server,
+    which ignores it (service.job_server), a worker ignores it from its first instruction, so
+    even one still starting up is not killed by it: the daemon decides how a job ends (at
+    shutdown it cancels the job, service/test_supervision.py)."""
     done = threading.Event()
     ends: list[JobEnd] = []
-    runner.submit(_sleep, (5.0,), lambda end: (ends.append(end), done.set()))
+    runner.submit(_sleep, (0.5,), lambda end: (ends.append(end), done.set()))
     while runner._running is None:
         time.sleep(0.001)
-    os.kill(runner._running.process.pid, signal.SIGTERM)  # at once: it is still importing
+    os.kill(runner._running.process.pid, signal.SIGTERM)  # at once: it is still starting
     assert done.wait(30)
-    assert ends[0].status == "cancelled" and "signal 15" in ends[0].message
+    assert ends[0].status == "ok", ends[0]
