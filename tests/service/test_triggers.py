@@ -137,8 +137,11 @@ def test_a_steady_capture_starts_no_job_after_the_first_unless_information_says_
         _settle(service)
         history = service.store.history()
         assert [r.trigger for r in history] == ["count"], "a job after the first, on no change"
+        # the windows were looked at as they came (how many at a time depends on how long the
+        # first job ran while the feed went on), every one of the 24 new ones, none raised an alarm
         events = _drift_events(service.store)
-        assert len(events) >= 10 and all(e["data"]["alarm_window"] is None for e in events)
+        assert len(events) >= 5 and events[-1]["data"]["windows"] == 24, events
+        assert all(e["data"]["alarm_window"] is None for e in events)
     finally:
         service.close(wait_s=0)
     # the default gain: the same design once more sharpens the coefficients by about 1 -
