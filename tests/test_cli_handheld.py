@@ -5,6 +5,8 @@ accelerometer from all poses."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -18,9 +20,11 @@ TRUTH_SEED = 11
 SEED = 3  # 5 of the 10 poses tremble too much for the both-triad detector (5 windows before)
 
 
-@pytest.fixture
-def handheld(tmp_path, capsys):
-    """The recording as a CSV log in raw counts, and what recal positions made of it."""
+@pytest.fixture(scope="module")
+def handheld(tmp_path_factory):
+    """The recording as a CSV log in raw counts, and what recal positions made of it (once for
+    the module: the tests only read it)."""
+    tmp_path = tmp_path_factory.mktemp("handheld")
     truth = mems_truth(TRUTH_SEED)
     s = simulate_handheld(truth, n_poses=10, seed=SEED)
     log = tmp_path / "handheld.csv"
@@ -28,8 +32,12 @@ def handheld(tmp_path, capsys):
     header = "time_s,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z"
     np.savetxt(log, data, delimiter=",", header=header, comments="", fmt=["%.2f"] + ["%d"] * 6)
     out, report = tmp_path / "pos.csv", tmp_path / "pos.html"
-    rc = main(["positions", str(log), "--format", "csv", "--report", str(report), "-o", str(out)])
-    err = capsys.readouterr().err
+    stderr = io.StringIO()
+    with contextlib.redirect_stderr(stderr):
+        rc = main(
+            ["positions", str(log), "--format", "csv", "--report", str(report), "-o", str(out)]
+        )
+    err = stderr.getvalue()
     assert rc == 0, err
     return s, truth, out, report, err
 

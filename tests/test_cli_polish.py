@@ -143,6 +143,7 @@ def test_positions_warns_when_the_rate_setting_is_wrong(
             assert "--rate 10 (these windows suggest 100 Hz)" in err
 
 
+@pytest.mark.slow
 def test_paper_mode_excess_is_blamed_on_the_solver_when_lm_fits(
     tmp_path, capsys: pytest.CaptureFixture[str]
 ) -> None:

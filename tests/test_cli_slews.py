@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from recal.detect.slews import Slews
 from recal.model.coefficients import CoefficientSet
@@ -17,6 +18,7 @@ GYRO = "xsens_static_poses_gyro.txt"
 XSENS_LATITUDE = 57.834
 
 
+@pytest.mark.slow
 def test_xsens_gyro_is_calibrated_from_the_slews(shared_data, tmp_path, capsys):
     out = tmp_path / "x.csv"
     args = [str(shared_data / ACC), str(shared_data / GYRO), "--format", "xsens-text"]

@@ -108,6 +108,7 @@ def test_ferraris_calibration_is_a_fixed_point(ferraris_positions: str, tmp_path
 WARMUP = str(Path(__file__).resolve().parents[1] / "docs" / "examples" / "warmup_plugin.py")
 
 
+@pytest.mark.slow
 def test_ferraris_misfit_is_named_and_adding_it_fits(ferraris_positions: str, capsys) -> None:
     """chi2_red above 3: diagnose points at a drift with time, the shipped warm-up plugin and the
     gyro's g-sensitivity it then suggests bring calibrate's chi2_red to <= 3. The session's
@@ -128,6 +129,7 @@ def test_ferraris_misfit_is_named_and_adding_it_fits(ferraris_positions: str, ca
     assert fit["chi2_red"] <= 3.0 and fit["converged"] is True
 
 
+@pytest.mark.slow
 def test_xsens_misfit_is_named_and_adding_it_fits(shared_data: Path, tmp_path, capsys) -> None:
     """The Xsens MEMS recording: chi2_red 25 with the seed model; diagnose names the gyro's
     g-sensitivity, and calibrate with it fits to chi2_red <= 3."""

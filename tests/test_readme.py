@@ -127,6 +127,7 @@ def test_every_example_writes_its_own_files() -> None:
     assert len(written) == len(set(written)), sorted(f for f in written if written.count(f) > 1)
 
 
+@pytest.mark.slow
 def test_the_readme_examples_run_in_order(tmp_path: Path) -> None:
     """Every README command not listed in NOT_RUN exits with the code it claims, run in a fresh
     folder that sees the project's docs/ and ../shared/ (read only) and nothing else."""

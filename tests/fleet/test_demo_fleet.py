@@ -4,12 +4,14 @@ has a version rejected, and the dashboard's URL is printed."""
 
 import re
 
+import pytest
 from sqlalchemy import create_engine, text
 
 from service.cli.demo_fleet import VESSEL_TABLES, VESSELS, vessel_counts
 from service.cli.main import main
 
 
+@pytest.mark.slow
 def test_demo_fleet_syncs_every_vessel_once(tmp_path, capsys):
     folder = tmp_path / "fleet"
     assert main(["demo", "--fleet", "--dir", str(folder)]) == 0

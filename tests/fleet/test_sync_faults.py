@@ -18,6 +18,7 @@ from service.db import Store
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow
 def test_kill_9_on_both_sides_loses_and_doubles_nothing(postgres_url) -> None:
     # postgres_url: the benchmark makes its own database on the same server; the fixture
     # skips (or, under CI, fails) when PostgreSQL is not there

@@ -69,6 +69,7 @@ def test_missing_prior_file(tmp_path: Path) -> None:
         check_startup(settings)
 
 
+@pytest.mark.slow
 def test_serve_refuses_bad_settings_in_one_line_with_exit_2(tmp_path: Path) -> None:
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))

@@ -66,6 +66,7 @@ def page(browser: Any) -> Iterator[Any]:
         page.close()  # ends the page's /events stream before the daemon stops
 
 
+@pytest.mark.slow
 def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path):
     from playwright.sync_api import expect
 

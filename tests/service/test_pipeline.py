@@ -25,6 +25,7 @@ from service.config import (
 TOKEN = "pipeline-test-token-0123456789"
 
 
+@pytest.mark.slow
 def test_demo_runs_the_whole_product(tmp_path, capsys):
     folder = tmp_path / "demo"
     assert main(["demo", "--dir", str(folder), "--seed", "3"]) == 0
@@ -58,6 +59,7 @@ def capture(tmp_path):
     return path, len(data), rate, truth
 
 
+@pytest.mark.slow
 def test_daemon_over_a_real_http_server(tmp_path, capture, serve, replay):
     path, size, rate, truth = capture
     settings = Settings(

@@ -8,6 +8,7 @@ import sys
 import time
 
 import httpx
+import pytest
 
 from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
@@ -20,6 +21,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_serve_process_notifies_systemd_serves_and_stops_on_sigterm(tmp_path, systemd):
     session = simulate_session(kvh_like_truth(2), "24", latitude_deg=50.0, seed=2, rate_hz=100.0,
                                window_s=15.0, slew_s=3.0, first_hold_s=30.0)  # fmt: skip

@@ -118,6 +118,7 @@ def test_a_trigger_that_cannot_run_says_why(tmp_path) -> None:
         service.close(wait_s=0)
 
 
+@pytest.mark.slow
 def test_no_window_is_lost_to_a_database_outage(
     tmp_path, capture, pg_database, block_database
 ) -> None:
@@ -175,6 +176,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_sigterm_to_the_whole_group_mid_job_exits_0(tmp_path, capture) -> None:
     """What `systemctl stop` does with KillMode=control-group: every process gets SIGTERM."""
     (tmp_path / "capture.bin").write_bytes(capture)

@@ -82,6 +82,7 @@ def truth():
     return kvh_like_truth(4)
 
 
+@pytest.mark.slow
 def test_a_change_half_way_starts_a_job_because_of_drift(tmp_path, truth) -> None:
     service = build_service(_settings(tmp_path, min_information_gain=0.6), with_reader=False)
     try:
@@ -125,6 +126,7 @@ def test_a_change_half_way_starts_a_job_because_of_drift(tmp_path, truth) -> Non
         service.close(wait_s=0)
 
 
+@pytest.mark.slow
 def test_a_steady_capture_starts_no_job_after_the_first_unless_information_says_so(
     tmp_path, truth
 ) -> None:

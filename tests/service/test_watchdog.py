@@ -124,6 +124,7 @@ def _housekeeping(service: Any) -> Iterator[Housekeeping]:
         for how in STOPS
     ],
 )  # fmt: skip
+@pytest.mark.slow
 def test_a_dead_part_stops_the_watchdog_and_health_names_it(
     how: str, tmp_path: Path, capture: Path, systemd: Any, serve: Callable
 ) -> None:
