@@ -8,13 +8,15 @@ if absent. No token or an unknown one: 401.
 
 from __future__ import annotations
 
+import contextlib
 import hmac
 import logging
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from fastapi import Depends, FastAPI, HTTPException, Query, Request
+from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -163,7 +165,15 @@ def create_app(store: FleetStore, api: ShoreApiSettings | None = None) -> FastAP
     batch size limit."""
     from service.api.docs import add_docs
 
+    priors = FleetPriors(store)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        yield
+        await run_in_threadpool(priors.close)  # a recompute under way finishes first
+
     app = FastAPI(
+        lifespan=lifespan,
         title="fog-recal fleet shore service",
         version=__version__,
         description="The fleet's calibration history, as the vessels send it (docs/fleet.md). "
@@ -174,7 +184,7 @@ def create_app(store: FleetStore, api: ShoreApiSettings | None = None) -> FastAP
     )
     app.state.fleet_store = store
     app.state.fleet_api = api or ShoreApiSettings()
-    app.state.fleet_priors = FleetPriors(store)
+    app.state.fleet_priors = priors
     add_docs(app)
     app.add_exception_handler(StoreError, _store_unavailable)
     _routes(app)
@@ -234,6 +244,10 @@ def _routes(app: FastAPI) -> None:
         if batch.unit != who.unit.serial:
             raise HTTPException(403, f"this token is not unit {batch.unit}'s")
         stored, duplicates = await run_in_threadpool(store.ingest, who.unit, batch, len(body))
+        if stored and any(r.kind == "version" and r.data.get("accepted") for r in batch.rows):
+            # a new accepted version changes its model's prior: recomputed now, in the
+            # background, so that no request waits for it
+            request.app.state.fleet_priors.refresh_soon()
         log.info("%s: %d rows stored, %d duplicates (%d bytes)", who.unit.serial, stored,
                  duplicates, len(body))  # fmt: skip
         return IngestOut(stored=stored, duplicates=duplicates)
@@ -323,18 +337,25 @@ def _priors(request: Request) -> FleetPriors:
 PriorsDep = Annotated[FleetPriors, Depends(_priors)]
 
 
-def _prior_of(priors: FleetPriors, who: Caller, model: str) -> dict[str, Any]:
-    """The model's current prior; 404 for a model without one, or not the caller unit's."""
+#: Response header of the fleet prior's routes: "true" when accepted versions arrived since the
+#: prior answered was computed (its successor is being computed in the background).
+STALE_HEADER = "X-Fleet-Prior-Stale"
+
+
+def _prior_of(priors: FleetPriors, who: Caller, model: str) -> tuple[dict[str, Any], bool]:
+    """The model's newest prior and whether it is stale; 404 for a model without one, or not
+    the caller unit's."""
     if who.unit is not None and who.unit.model != model:
         raise HTTPException(404, f"no fleet prior for model {model}")
-    found = priors.current([model]).get(model)
+    documents, stale = priors.served([model])
+    found = documents.get(model)
     if not found:
         raise HTTPException(
             404,
             f"no fleet prior for model {model}: it needs a unit of that model with two "
             "accepted versions",
         )
-    return found
+    return found, model in stale
 
 
 def _fleet_routes(app: FastAPI) -> None:
@@ -357,13 +378,17 @@ def _fleet_routes(app: FastAPI) -> None:
                 raise HTTPException(404, f"unit {who.unit.serial} has no model registered "
                                     "(recal fleet add-unit --rotate --model MODEL)")  # fmt: skip
             model = who.unit.model
-        return JSONResponse(_prior_of(priors, who, model))
+        document, stale = _prior_of(priors, who, model)
+        return JSONResponse(document, headers={STALE_HEADER: "true" if stale else "false"})
 
     @app.get("/fleet/outliers", responses={404: {"description": "no prior for this model"}})
-    def outliers(model: Model, who: CallerDep, priors: PriorsDep) -> dict[str, Any]:
+    def outliers(
+        model: Model, who: CallerDep, priors: PriorsDep, response: Response
+    ) -> dict[str, Any]:
         """The units of ``model`` whose ageing fails the fleet prior's chi-square test, with
         their statistic (a unit's token: itself, if flagged)."""
-        doc = _prior_of(priors, who, model)
+        doc, stale = _prior_of(priors, who, model)
+        response.headers[STALE_HEADER] = "true" if stale else "false"
         flagged = [o for o in doc.get("outliers") or ()
                    if who.unit is None or o.get("unit") == who.unit.serial]  # fmt: skip
         return {"model": model, "prior_version": doc.get("version"),

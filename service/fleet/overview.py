@@ -147,7 +147,7 @@ def overview(
 
     # 5. the fleet priors of the models shown (their outliers): a fixed number of queries too
     models = sorted({u.model for u, *_ in units if u.model})
-    current_priors = priors.current(models) if models else {}
+    current_priors, stale_priors = priors.served(models) if models else ({}, set())
     flagged = {
         (m, o["unit"]): o for m, doc in current_priors.items() for o in doc.get("outliers") or ()
     }
@@ -194,6 +194,7 @@ def overview(
                 "prior_version": d.get("version"),
                 "prior_created_at": d.get("created_at"),
                 "outliers": len(d.get("outliers") or ()),
+                "prior_stale": m in stale_priors,  # its successor is being computed
             }
             for m, d in current_priors.items()
         },  # fmt: skip

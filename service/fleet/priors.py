@@ -10,6 +10,12 @@ the digest changes exactly when an accepted version arrives or a unit changes mo
 again with the same inputs answers the stored prior (a process cache spares the database even
 that), so a dashboard refresh never recomputes.
 
+Requests never wait for a recompute (:meth:`FleetPriors.served`): a prior whose inputs changed
+is recomputed by one background thread, woken by the ingest that stored an accepted version
+(:meth:`FleetPriors.refresh_soon`), and until it is done requests answer the stored one and say
+it is stale. Only a model's very first prior is computed in the request that asks for it: its
+history is then two versions long.
+
 Every call runs a fixed number of SQL statements, whatever the number of units and models.
 """
 
@@ -18,6 +24,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import logging
 import threading
 from collections import defaultdict
 from collections.abc import Iterable
@@ -29,6 +36,8 @@ from sqlalchemy.exc import IntegrityError
 
 from service.db import StoreError
 from service.fleet.schema import PriorRow, UnitRow, VersionRow
+
+log = logging.getLogger(__name__)
 
 #: Units of no registered model are grouped under this name in the overview (no prior).
 NO_MODEL = None
@@ -54,6 +63,13 @@ class FleetPriors:
         self._store = store
         self._cache: dict[str, tuple[str, dict[str, Any]]] = {}  # model -> (inputs, document)
         self._lock = threading.Lock()  # one computation at a time per process
+        # the background refresh: woken by refresh_soon, idle when nothing is left to compute
+        self._state = threading.Lock()
+        self._wake = threading.Event()
+        self._idle = threading.Event()
+        self._idle.set()
+        self._thread: threading.Thread | None = None
+        self._closed = False
 
     def inputs(self, models: Iterable[str] | None = None) -> dict[str, str]:
         """The inputs' digest of every model (or of ``models``) that has units: one query."""
@@ -78,7 +94,10 @@ class FleetPriors:
         per_model: dict[str, list[Any]] = defaultdict(list)
         with self._store._tx() as s:
             for model, serial, n, newest in s.execute(query):
-                per_model[model].append([serial, n or 0, newest])
+                if n:  # a unit without an accepted version adds nothing to learn from
+                    per_model[model].append([serial, n, newest])
+                else:
+                    per_model.setdefault(model, [])
         return {m: hashlib.sha256(json.dumps(rows).encode()).hexdigest()
                 for m, rows in per_model.items()}  # fmt: skip
 
@@ -110,6 +129,82 @@ class FleetPriors:
                     self._cache[m] = (digests[m], documents.get(m) or {})
                     out[m] = documents.get(m) or {}
         return {m: d for m, d in out.items() if d}
+
+    def served(
+        self, models: Iterable[str] | None = None
+    ) -> tuple[dict[str, dict[str, Any]], set[str]]:
+        """What a request answers: (the newest prior of every model, or of ``models``, that has
+        one; the models among them whose inputs changed since it was computed). A stale prior is
+        recomputed in the background (:meth:`refresh_soon`), never here; a model with no stored
+        prior yet is computed here (once per model, while its history is short)."""
+        digests = self.inputs(models)
+        out: dict[str, dict[str, Any]] = {}
+        unknown = []
+        for model, digest in digests.items():
+            cached = self._cache.get(model)
+            if cached is not None and cached[0] == digest:
+                out[model] = cached[1]
+            else:
+                unknown.append(model)
+        stale: set[str] = set()
+        if unknown:
+            stored = self._stored(unknown)
+            first = [m for m in unknown if m not in stored]
+            for m in unknown:
+                if m in stored:
+                    inputs, document, _ = stored[m]
+                    out[m] = document
+                    if inputs == digests[m]:
+                        self._cache[m] = (inputs, document)
+                    else:
+                        stale.add(m)
+            if first:
+                out.update(self.current(first))
+            if stale:
+                self.refresh_soon()
+        return {m: d for m, d in out.items() if d}, stale & {m for m, d in out.items() if d}
+
+    def refresh_soon(self) -> None:
+        """Recompute every stale prior in the background thread (started on first use)."""
+        with self._state:
+            if self._closed:
+                return
+            self._idle.clear()
+            self._wake.set()
+            if self._thread is None:
+                self._thread = threading.Thread(
+                    target=self._refresh_loop, name="fleet-prior-refresh", daemon=True
+                )
+                self._thread.start()
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        """Until no background recompute is pending or running; False after ``timeout`` s."""
+        return self._idle.wait(timeout)
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Stop the background thread (a recompute under way finishes first)."""
+        with self._state:
+            self._closed = True
+            self._wake.set()
+            thread = self._thread
+        if thread is not None:
+            thread.join(timeout)
+
+    def _refresh_loop(self) -> None:
+        while True:
+            self._wake.wait()
+            with self._state:
+                if self._closed:
+                    self._idle.set()
+                    return
+                self._wake.clear()
+            try:
+                self.current()
+            except Exception:  # the database went away: the next ingest or request retries
+                log.exception("fleet prior recompute failed")
+            with self._state:
+                if not self._wake.is_set():
+                    self._idle.set()
 
     def _stored(self, models: list[str]) -> dict[str, tuple[str, dict[str, Any], int]]:
         """The newest stored prior of each of ``models``: (inputs, document, version)."""

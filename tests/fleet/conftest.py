@@ -58,6 +58,7 @@ class Shore:
     url: str
     store: FleetStore
     client: httpx.Client
+    priors: Any = None  # the app's FleetPriors (its background recompute)
 
     def post(self, token: str | None, body: bytes, gzipped: bool = True) -> httpx.Response:
         headers = {"Content-Type": "application/json"}
@@ -84,8 +85,8 @@ def shore(fleet_store: FleetStore) -> Iterator[Shore]:
     from service.fleet.api import create_app
 
     api = ShoreApiSettings(token=ADMIN_TOKEN, max_batch_bytes=64 * 1024)
-    config = uvicorn.Config(create_app(fleet_store, api), host="127.0.0.1", port=0,
-                            log_level="warning")  # fmt: skip
+    app = create_app(fleet_store, api)
+    config = uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning")
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
@@ -96,7 +97,7 @@ def shore(fleet_store: FleetStore) -> Iterator[Shore]:
             time.sleep(0.01)
         port = server.servers[0].sockets[0].getsockname()[1]
         with httpx.Client(timeout=30) as client:
-            yield Shore(f"http://127.0.0.1:{port}", fleet_store, client)
+            yield Shore(f"http://127.0.0.1:{port}", fleet_store, client, app.state.fleet_priors)
     finally:
         server.should_exit = True
         thread.join(10)

@@ -50,7 +50,12 @@ def fleet(shore: Any, wire: Any, simulated_fleet: Any) -> dict[str, Any]:
     tokens[DSP] = shore.store.add_unit(DSP, "DSP-1760")
     assert shore.send(tokens[DSP], wire.batch(DSP, _dsp_rows(wire))).status_code == 200
     tokens[QUIET] = shore.store.add_unit(QUIET, "DSP-1760")
-    return {"tokens": tokens, "outliers": sim["outliers"], "units": sim["units"]}
+    # each batch with accepted versions started a recompute of the prior in the background: a
+    # new version of it whenever its inputs had changed by then
+    assert shore.priors.wait_idle(60)
+    version = shore.get(ADMIN, "/fleet/prior", model="KVH-1750").json()["version"]
+    return {"tokens": tokens, "outliers": sim["outliers"], "units": sim["units"],
+            "prior_version": version}  # fmt: skip
 
 
 def test_the_overview_rows_attention_first(shore, fleet) -> None:
@@ -87,7 +92,7 @@ def test_the_overview_rows_attention_first(shore, fleet) -> None:
     assert link["backlog"] == 7 and link["hours_since_contact"] < 1
     assert len(link["bytes_per_day"]) == 7 and link["bytes_per_day"][-1]["bytes"] > 0
     assert link["bytes_7d"] == sum(d["bytes"] for d in link["bytes_per_day"])
-    assert kvh["outlier"] == {"flagged": False, "prior_version": 1}
+    assert kvh["outlier"] == {"flagged": False, "prior_version": fleet["prior_version"]}
     flagged = rows[outlier]["outlier"]
     assert flagged["flagged"] and flagged["statistic"] > flagged["dof"] * 10
 
@@ -103,7 +108,8 @@ def test_the_overview_rows_attention_first(shore, fleet) -> None:
         1,
         3,
     )
-    assert view["models"]["KVH-1750"]["prior_version"] == 1
+    assert view["models"]["KVH-1750"]["prior_version"] == fleet["prior_version"]
+    assert view["models"]["KVH-1750"]["prior_stale"] is False
     assert "DSP-1760" not in view["models"]  # one accepted version: no change to learn from
 
     # a unit's token: its own row alone; no token: 401
@@ -132,6 +138,7 @@ def test_the_overview_takes_a_fixed_number_of_queries(shore, fleet, wire) -> Non
             serial = f"SN-MORE-{i}"
             token = store.add_unit(serial, "DSP-1760")
             assert shore.send(token, wire.batch(serial, wire.rows_of(2, 1, 26))).status_code == 200
+        assert shore.priors.wait_idle(60)
         overview(store, priors)  # DSP-1760 now has a prior to compute
         statements.clear()
         overview(store, priors)
@@ -150,7 +157,9 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
     assert r.status_code == 200
     doc = r.json()
     prior = read_fleet_prior(doc, source="GET /fleet/prior")
-    assert doc["format"] == "recal.fleet_prior/1" and prior.version == 1
+    v0 = fleet["prior_version"]  # 1 or more: recomputed while the units' batches came
+    assert doc["format"] == "recal.fleet_prior/1" and prior.version == v0 >= 1
+    assert r.headers["X-Fleet-Prior-Stale"] == "false"
     assert prior.model == "KVH-1750" and len(prior.coefficients) == 27
     assert (
         prior.coefficients["gyro.scale.Kx"].relative
@@ -160,9 +169,9 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
     # asked again (and by a unit of the model): the same prior, not recomputed
     assert shore.get(tokens["KVH-1750-SN0001"], "/fleet/prior", model="KVH-1750").json() == doc
     again = FleetPriors(shore.store).current(["KVH-1750"])["KVH-1750"]
-    assert again["version"] == 1 and again["created_at"] == doc["created_at"]
+    assert again["version"] == v0 and again["created_at"] == doc["created_at"]
     with shore.store._tx() as s:
-        assert s.scalar(select(func.count()).select_from(PriorRow)) == 1
+        assert s.scalar(select(func.count()).select_from(PriorRow)) == v0  # one row a version
 
     # a new accepted version: new inputs, version 2
     serial = "KVH-1750-SN0001"
@@ -171,11 +180,20 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
     row["data"] = {**row["data"], "version": k, "created_at": "2026-11-26T00:00:00Z"}
     row["at"] = "2026-11-26T00:00:00Z"
     assert shore.send(tokens[serial], wire.batch(serial, [row])).json()["stored"] == 1
-    assert shore.get(ADMIN, "/fleet/prior", model="KVH-1750").json()["version"] == 2
+    # recomputed in the background: until then a request answers the old version, marked stale
+    early = shore.get(ADMIN, "/fleet/prior", model="KVH-1750")
+    assert (early.json()["version"], early.headers["X-Fleet-Prior-Stale"]) in {
+        (v0, "true"),
+        (v0 + 1, "false"),
+    }
+    assert shore.priors.wait_idle(60)
+    fresh = shore.get(ADMIN, "/fleet/prior", model="KVH-1750")
+    assert (fresh.json()["version"], fresh.headers["X-Fleet-Prior-Stale"]) == (v0 + 1, "false")
     # a rejected version changes nothing
     bad = {**row, "id": k + 1, "data": {**row["data"], "version": k + 1, "accepted": False}}
     assert shore.send(tokens[serial], wire.batch(serial, [bad])).json()["stored"] == 1
-    assert shore.get(ADMIN, "/fleet/prior", model="KVH-1750").json()["version"] == 2
+    assert shore.priors.wait_idle(60)
+    assert shore.get(ADMIN, "/fleet/prior", model="KVH-1750").json()["version"] == v0 + 1
 
     # who may read which prior
     assert shore.get(tokens[DSP], "/fleet/prior", model="KVH-1750").status_code == 404
@@ -188,7 +206,7 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
     # the outliers: every flagged unit for the administrator, itself alone for a unit
     (outlier,) = fleet["outliers"]
     found = shore.get(ADMIN, "/fleet/outliers", model="KVH-1750").json()
-    assert found["prior_version"] == 2 and [o["unit"] for o in found["outliers"]] == [outlier]
+    assert found["prior_version"] == v0 + 1 and [o["unit"] for o in found["outliers"]] == [outlier]
     assert found["outliers"][0]["p_value"] < 0.01 and found["outliers"][0]["statistic"] > 0
     assert shore.get(tokens[outlier], "/fleet/outliers", model="KVH-1750").json()["outliers"]
     assert shore.get(tokens[serial], "/fleet/outliers", model="KVH-1750").json()["outliers"] == []
@@ -254,6 +272,44 @@ def test_the_prior_reads_the_flat_column_as_it_would_the_documents(shore, fleet)
         == fleet_prior(old, "KVH-1750", **stamp).to_json_dict()
     )
     served = FleetPriors(shore.store).current(["KVH-1750"])["KVH-1750"]
-    expected = fleet_prior(old, "KVH-1750", version=1, created_at=served["created_at"],
+    expected = fleet_prior(old, "KVH-1750", version=served["version"], created_at=served["created_at"],
                            metadata=served.get("metadata"))  # fmt: skip
     assert served == expected.to_json_dict()
+
+
+def test_a_request_never_waits_for_a_recompute(shore, fleet, wire, monkeypatch) -> None:
+    """A new accepted version makes the prior stale: a request answers the stored one at once,
+    says so, and the recompute runs in the background thread; then the new version is served."""
+    import json
+    import threading
+
+    from service.fleet.batch import read_batch
+
+    v0 = fleet["prior_version"]
+    serial = "KVH-1750-SN0002"
+    k = len(fleet["units"][serial]) + 1
+    row = dict(fleet["units"][serial][-1], id=k, at="2026-11-27T00:00:00Z")
+    row["data"] = {**row["data"], "version": k, "created_at": "2026-11-27T00:00:00Z"}
+    body = json.dumps(wire.batch(serial, [row])).encode()
+    unit = shore.store.unit_by_serial(serial)
+    assert shore.store.ingest(unit, read_batch(body, None, len(body)), len(body)) == (1, 0)
+
+    computed_in: list[str] = []
+    compute = FleetPriors._compute
+
+    def spy(self: FleetPriors, *args: Any) -> Any:
+        computed_in.append(threading.current_thread().name)
+        return compute(self, *args)
+
+    monkeypatch.setattr(FleetPriors, "_compute", spy)
+    priors = FleetPriors(shore.store)  # another process: nothing cached
+    try:
+        documents, stale = priors.served(["KVH-1750"])
+        assert documents["KVH-1750"]["version"] == v0 and stale == {"KVH-1750"}
+        assert priors.wait_idle(60)
+        assert computed_in == ["fleet-prior-refresh"]  # not the caller's thread
+        documents, stale = priors.served(["KVH-1750"])
+        assert documents["KVH-1750"]["version"] == v0 + 1 and stale == set()
+        assert computed_in == ["fleet-prior-refresh"]  # and not again
+    finally:
+        priors.close()

@@ -23,6 +23,7 @@ def seeded(shore: Any, wire: Any, simulated_fleet: Any) -> Any:
     for serial, rows in simulated_fleet()["units"].items():
         token = shore.store.add_unit(serial, "KVH-1750")
         assert shore.send(token, wire.batch(serial, rows)).status_code == 200
+    assert shore.priors.wait_idle(60)  # the prior recomputed after the batches
     return shore
 
 
@@ -37,14 +38,17 @@ def test_a_new_unit_fetches_its_models_prior_once_per_version(tmp_path, seeded) 
     (tmp_path / "state").mkdir()
     token = seeded.store.add_unit(NEW_UNIT, "KVH-1750")
     # the unit's own model is the default; the administrator must name one
-    assert seeded.get(token, "/fleet/prior").json()["model"] == "KVH-1750"
+    served = seeded.get(token, "/fleet/prior")
+    assert served.json()["model"] == "KVH-1750"
+    # a unit with no accepted version yet changes nothing the prior learns from
+    assert served.headers["X-Fleet-Prior-Stale"] == "false"
     assert seeded.get("admin-token-0123456789abcdef", "/fleet/prior").status_code == 422
     client = _client(tmp_path, seeded, NEW_UNIT, token)
     try:
         assert client.step() == 60.0  # the outbox is empty: the prior is fetched
         path = client.prior_path
         prior = read_fleet_prior_file(str(path))
-        assert (prior.model, prior.version) == ("KVH-1750", 1)
+        assert (prior.model, prior.version) == ("KVH-1750", served.json()["version"])
         assert prior.coefficients["gyro.bias.bx"].units == 7  # the outlier unit set aside
         # not due again for hours; when due, the same version leaves the file alone
         stamp = os.stat(path).st_mtime_ns

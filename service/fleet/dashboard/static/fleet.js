@@ -104,7 +104,7 @@ function renderTotals() {
     ["traffic / day (7 d)", bytesWord(t.bytes_7d / 7)], ["backlog (rows)", t.backlog]];
   $("totals").replaceChildren(...items.map(([k, v]) => el("div", {}, el("dt", {}, k), el("dd", {}, String(v)))));
   $("generated").textContent = `as of ${when(o.generated_at)}`;
-  const models = Object.entries(o.models || {}).map(([m, p]) => `${m}: fleet prior v${p.prior_version} (${p.outliers} outlier${p.outliers === 1 ? "" : "s"})`);
+  const models = Object.entries(o.models || {}).map(([m, p]) => `${m}: fleet prior v${p.prior_version} (${p.outliers} outlier${p.outliers === 1 ? "" : "s"}${p.prior_stale ? "; being recomputed" : ""})`);
   $("models").textContent = models.length ? models.join(" · ") : "No fleet prior yet (a model needs a unit with two accepted versions).";
 }
 
