@@ -359,14 +359,11 @@ def _prior_of(priors: FleetPriors, who: Caller, model: str) -> tuple[dict[str, A
 
 
 def _fleet_routes(app: FastAPI) -> None:
-    @app.get("/fleet/overview", response_model=dict[str, Any])
-    def overview(who: CallerDep, store: StoreDep, priors: PriorsDep) -> JSONResponse:
+    @app.get("/fleet/overview")
+    def overview(who: CallerDep, store: StoreDep, priors: PriorsDep) -> dict[str, Any]:
         """One row per unit for the dashboard (units needing attention first) and the fleet's
         totals; a unit's token: its own row alone."""
-        view = fleet_overview(store, priors, only=None if who.unit is None else who.unit.id)
-        # plain JSON already (strings and numbers): FastAPI's generic encoder took about 100 ms
-        # of the 0.44 s median at 1000 units, json.dumps 13 ms
-        return JSONResponse(view)
+        return fleet_overview(store, priors, only=None if who.unit is None else who.unit.id)
 
     @app.get("/fleet/prior", responses={404: {"description": "no prior for this model"}})
     def prior(who: CallerDep, priors: PriorsDep, model: Model | None = None) -> JSONResponse:
