@@ -105,15 +105,23 @@ class FleetPriors:
         """The current prior document of every model (or of ``models``) with units, computed
         and stored where its inputs changed; a model without two accepted versions of one
         unit gets none (absent)."""
-        digests = self.inputs(models)
+        return self._current(self.inputs(models))
+
+    def _from_cache(self, digests: dict[str, str]) -> tuple[dict[str, dict[str, Any]], list[str]]:
+        """(the cached documents whose inputs still match ``digests``, the other models)."""
         out: dict[str, dict[str, Any]] = {}
-        stale = []
+        missing = []
         for model, digest in digests.items():
             cached = self._cache.get(model)
             if cached is not None and cached[0] == digest:
                 out[model] = cached[1]
             else:
-                stale.append(model)
+                missing.append(model)
+        return out, missing
+
+    def _current(self, digests: dict[str, str]) -> dict[str, dict[str, Any]]:
+        """:meth:`current` for the models of ``digests``, their inputs already digested."""
+        out, stale = self._from_cache(digests)
         if not stale:
             return {m: d for m, d in out.items() if d}
         with self._lock:
@@ -138,14 +146,7 @@ class FleetPriors:
         recomputed in the background (:meth:`refresh_soon`), never here; a model with no stored
         prior yet is computed here (once per model, while its history is short)."""
         digests = self.inputs(models)
-        out: dict[str, dict[str, Any]] = {}
-        unknown = []
-        for model, digest in digests.items():
-            cached = self._cache.get(model)
-            if cached is not None and cached[0] == digest:
-                out[model] = cached[1]
-            else:
-                unknown.append(model)
+        out, unknown = self._from_cache(digests)
         stale: set[str] = set()
         if unknown:
             stored = self._stored(unknown)
@@ -159,7 +160,7 @@ class FleetPriors:
                     else:
                         stale.add(m)
             if first:
-                out.update(self.current(first))
+                out.update(self._current({m: digests[m] for m in first}))
             if stale:
                 self.refresh_soon()
         return {m: d for m, d in out.items() if d}, stale & {m for m, d in out.items() if d}
