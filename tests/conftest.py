@@ -104,6 +104,17 @@ def browser() -> Iterator[Any]:
             b.close()
 
 
+@pytest.fixture()
+def page(browser: Any) -> Iterator[Any]:
+    """A 1600 x 1000 page of :func:`browser`, closed after the test (which also ends a
+    dashboard's /events stream before its daemon stops)."""
+    page = browser.new_page(viewport={"width": 1600, "height": 1000})
+    try:
+        yield page
+    finally:
+        page.close()
+
+
 # ---- PostgreSQL (tests/service, tests/fleet) -------------------------------------------
 
 PG_ADMIN_URL = os.environ.get("RECAL_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432/test")

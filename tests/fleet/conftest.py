@@ -4,6 +4,7 @@ shore server (uvicorn in a thread on a free port) over it."""
 
 from __future__ import annotations
 
+import contextlib
 import gzip
 import json
 import threading
@@ -76,6 +77,28 @@ class Shore:
         return self.client.get(f"{self.url}{path}", headers=headers, params=params)
 
 
+@contextlib.contextmanager
+def running(server: Any) -> Iterator[int]:
+    """A uvicorn ``server`` run in a thread for the block; yields the port it bound."""
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 30
+        while not server.started:
+            assert thread.is_alive() and time.monotonic() < deadline, "server did not start"
+            time.sleep(0.01)
+        yield server.servers[0].sockets[0].getsockname()[1]
+    finally:
+        server.should_exit = True
+        thread.join(15)
+
+
+@pytest.fixture
+def run_server() -> Any:
+    """:func:`running`, for test modules: ``with run_server(uvicorn.Server(...)) as port``."""
+    return running
+
+
 @pytest.fixture
 def shore(fleet_store: FleetStore) -> Iterator[Shore]:
     """A real shore server (uvicorn, HTTP on 127.0.0.1) over ``fleet_store``, with the
@@ -87,20 +110,8 @@ def shore(fleet_store: FleetStore) -> Iterator[Shore]:
     api = ShoreApiSettings(token=ADMIN_TOKEN, max_batch_bytes=64 * 1024)
     app = create_app(fleet_store, api)
     config = uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning")
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 30
-        while not server.started:
-            assert thread.is_alive() and time.monotonic() < deadline, "server did not start"
-            time.sleep(0.01)
-        port = server.servers[0].sockets[0].getsockname()[1]
-        with httpx.Client(timeout=30) as client:
-            yield Shore(f"http://127.0.0.1:{port}", fleet_store, client, app.state.fleet_priors)
-    finally:
-        server.should_exit = True
-        thread.join(10)
+    with running(uvicorn.Server(config)) as port, httpx.Client(timeout=30) as client:
+        yield Shore(f"http://127.0.0.1:{port}", fleet_store, client, app.state.fleet_priors)
 
 
 class Wire:

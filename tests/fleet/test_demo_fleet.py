@@ -4,8 +4,6 @@ has a version rejected, and the dashboard's URL is printed; the demo's shore, se
 ``--serve`` would keep it, shows them on the fleet dashboard in a real browser."""
 
 import re
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +15,7 @@ from service.cli.main import main
 
 
 @pytest.mark.slow
-def test_demo_fleet_syncs_every_vessel_once(tmp_path, capsys, request):
+def test_demo_fleet_syncs_every_vessel_once(tmp_path, capsys, request, run_server):
     folder = tmp_path / "fleet"
     assert main(["demo", "--fleet", "--dir", str(folder)]) == 0
     out = capsys.readouterr().out
@@ -54,10 +52,13 @@ def test_demo_fleet_syncs_every_vessel_once(tmp_path, capsys, request):
     # the dashboard the demo points at, in Debian's chromium (skipped without it, except
     # under CI): the demo's shore database served again, as --serve keeps it up
     admin = re.search(r"administrator's token: (\S+)\)", out).group(1)
-    _dashboard_shows_the_demo(request.getfixturevalue("browser"), folder, admin, rejected[0])
+    browser = request.getfixturevalue("browser")
+    _dashboard_shows_the_demo(browser, run_server, folder, admin, rejected[0])
 
 
-def _dashboard_shows_the_demo(browser: Any, folder: Path, admin: str, aged: str) -> None:
+def _dashboard_shows_the_demo(
+    browser: Any, run_server: Any, folder: Path, admin: str, aged: str
+) -> None:
     from playwright.sync_api import expect
 
     from service.fleet.config import ShoreApiSettings, ShoreSettings
@@ -66,34 +67,25 @@ def _dashboard_shows_the_demo(browser: Any, folder: Path, admin: str, aged: str)
     settings = ShoreSettings(database_url=f"sqlite:///{folder / 'fleet.db'}",
                              api=ShoreApiSettings(host="127.0.0.1", port=0, token=admin))  # fmt: skip
     store = open_store(settings)
-    server = make_server(settings, store, log_level="warning")
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
     page = browser.new_page(viewport={"width": 1600, "height": 1000})
     try:
-        deadline = time.monotonic() + 30
-        while not server.started:
-            assert thread.is_alive() and time.monotonic() < deadline, "the shore did not start"
-            time.sleep(0.02)
-        port = server.servers[0].sockets[0].getsockname()[1]
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(f"http://127.0.0.1:{port}/fleet/dashboard")
-        page.fill("#token", admin)
-        page.click("#load")
-        rows = page.locator("#units tbody tr")
-        expect(rows).to_have_count(len(VESSELS))
-        # the unit that aged and had a version rejected needs attention first
-        assert rows.nth(0).get_attribute("data-unit") == aged
-        expect(rows.nth(0)).to_contain_text("rejected")
-        expect(page.locator("#totals")).to_contain_text("need attention")
-        page.click(f"#units tbody tr[data-unit='{aged}']")
-        expect(page.locator("#unit-name")).to_have_text(aged)
-        page.wait_for_selector("#unit-chart .scatterlayer .point")
-        page.screenshot(path=str(folder / "fleet-dashboard.png"), full_page=True)
-        assert errors == [], errors
+        with run_server(make_server(settings, store, log_level="warning")) as port:
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(f"http://127.0.0.1:{port}/fleet/dashboard")
+            page.fill("#token", admin)
+            page.click("#load")
+            rows = page.locator("#units tbody tr")
+            expect(rows).to_have_count(len(VESSELS))
+            # the unit that aged and had a version rejected needs attention first
+            assert rows.nth(0).get_attribute("data-unit") == aged
+            expect(rows.nth(0)).to_contain_text("rejected")
+            expect(page.locator("#totals")).to_contain_text("need attention")
+            page.click(f"#units tbody tr[data-unit='{aged}']")
+            expect(page.locator("#unit-name")).to_have_text(aged)
+            page.wait_for_selector("#unit-chart .scatterlayer .point")
+            page.screenshot(path=str(folder / "fleet-dashboard.png"), full_page=True)
+            assert errors == [], errors
     finally:
         page.close()
-        server.should_exit = True
-        thread.join(15)
         store.close()

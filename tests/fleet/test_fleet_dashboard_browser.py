@@ -37,15 +37,6 @@ def seeded(shore: Any, wire: Any, simulated_fleet: Any) -> dict[str, Any]:
     return sim
 
 
-@pytest.fixture()
-def page(browser: Any) -> Iterator[Any]:
-    page = browser.new_page(viewport={"width": 1600, "height": 1000})
-    try:
-        yield page
-    finally:
-        page.close()
-
-
 def test_the_fleet_dashboard_shows_every_unit_and_a_units_history(shore, seeded, page, tmp_path):
     from playwright.sync_api import expect
 

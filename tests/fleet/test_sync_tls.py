@@ -6,8 +6,6 @@ vessel that does not trust the certificate sends nothing and says why."""
 from __future__ import annotations
 
 import json
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -23,7 +21,7 @@ SERIAL = "KVH-1750-SN0TLS"
 
 
 @pytest.fixture
-def tls_shore(tmp_path: Path, fleet_store: FleetStore) -> Iterator[tuple[str, Path]]:
+def tls_shore(tmp_path: Path, fleet_store: FleetStore, run_server) -> Iterator[tuple[str, Path]]:
     """(the shore's https:// URL, the PEM file of the CA that signed its certificate)."""
     import uvicorn
 
@@ -39,19 +37,8 @@ def tls_shore(tmp_path: Path, fleet_store: FleetStore) -> Iterator[tuple[str, Pa
     app = create_app(fleet_store, ShoreApiSettings(token="admin-token-0123456789abcdef"))
     config = uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning",
                             ssl_keyfile=str(key), ssl_certfile=str(chain))  # fmt: skip
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 30
-        while not server.started:
-            assert thread.is_alive() and time.monotonic() < deadline, "server did not start"
-            time.sleep(0.01)
-        port = server.servers[0].sockets[0].getsockname()[1]
+    with run_server(uvicorn.Server(config)) as port:
         yield f"https://127.0.0.1:{port}", ca_pem
-    finally:
-        server.should_exit = True
-        thread.join(10)
 
 
 def _vessel(tmp_path: Path, url: str, token: str) -> Path:

@@ -57,15 +57,6 @@ def daemon(tmp_path: Path, serve, replay) -> Iterator[tuple[str, Any]]:
         yield base, service
 
 
-@pytest.fixture()
-def page(browser: Any) -> Iterator[Any]:
-    page = browser.new_page(viewport={"width": 1600, "height": 1000})
-    try:
-        yield page
-    finally:
-        page.close()  # ends the page's /events stream before the daemon stops
-
-
 @pytest.mark.slow
 def test_dashboard_draws_updates_live_and_shows_refusals(daemon, page, tmp_path):
     from playwright.sync_api import expect
