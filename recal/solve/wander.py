@@ -41,6 +41,41 @@ from recal.errors import RecalInputError
 
 #: Correlation times the estimate searches, s (0: independent windows).
 TAU_GRID_S = (0.0, 900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 57600.0, 115200.0, 345600.0)
+
+
+#: A fitted correlation time below the windows' spacing is not wander (below).
+def tau_floor_s(t: np.ndarray, sessions: np.ndarray | None = None) -> float:
+    """The shortest correlation time, s, a wander between these windows can show: the median
+    gap between consecutive windows of one session (docs/noise.md, "The floor on tau").
+
+    A Gauss-Markov bias correlates neighbouring windows by exp(-gap / tau). Below tau = gap
+    that is under 1/e (0.37), and the lag-one correlation of N windows' residuals is known to
+    about 1/sqrt(N) (0.18 for 30): a wander that fast is excess scatter independent on each
+    window, which no window-to-window correlation distinguishes from model error. So the
+    estimate tries 0 (independent excess, said to be such) and tau from this floor up."""
+    t = np.asarray(t, float)
+    order = np.argsort(t, kind="stable")
+    gaps = np.diff(t[order])
+    if sessions is not None:  # a gap across sessions is not a spacing
+        s = np.asarray(sessions)[order]
+        gaps = gaps[s[1:] == s[:-1]]
+    gaps = gaps[gaps > 0]
+    return float(np.median(gaps)) if gaps.size else 0.0
+
+
+def correlation_times(
+    t: np.ndarray | None, sessions: np.ndarray | None, span_s: float
+) -> list[float]:
+    """The correlation times the estimate tries, s: 0 (independent excess), the floor
+    (:func:`tau_floor_s`) and the grid above it up to twice the span (a slower wander is a
+    bias over the span). Only 0 without window times."""
+    if t is None:
+        return [0.0]
+    floor = tau_floor_s(t, sessions)
+    grid = [tau for tau in TAU_GRID_S if floor < tau <= 2.0 * span_s]
+    return [0.0, *([floor] if floor > 0 else []), *grid]
+
+
 #: The wander must earn its parameters per triad: sigma, and tau chosen on a grid (about 3
 #: effective degrees of freedom): chi-square(3) at 1 %. Measured under no wander (200 triad
 #: tests, 30 windows each): 1.5 % exceed it (chi-square(2)'s 9.21: 2 %; the 99 % point: 12.6).

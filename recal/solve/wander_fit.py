@@ -44,8 +44,8 @@ def _with_wander(
     a WanderModel is taken as given. Returns the problem, the estimate, the JSON noise model
     and the evaluations spent."""
     from recal.solve.wander import (
-        TAU_GRID_S,
         WanderModel,
+        correlation_times,
         estimate_wander,
         window_sessions,
         window_times,
@@ -77,7 +77,7 @@ def _with_wander(
         r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
         T = typical[:, None] * report.basis
         J = jacobian(problem, theta, T.T)[: len(r_std)]
-        taus = [tau for tau in TAU_GRID_S if tau <= 2.0 * span]  # slower is a bias over the span
+        taus = correlation_times(t, sessions, span)  # 0, then from the windows' spacing up
         model, fits = estimate_wander(
             r_std, sigma_w, problem.wander_sensitivity(theta), t, taus=taus, jacobian=J,
             sessions=sessions,
@@ -113,17 +113,29 @@ def _longest_session_span(t: np.ndarray, sessions: np.ndarray | None) -> float:
 
 
 def _wander_note(wander: dict[str, Any]) -> str:
-    parts = []
+    parts, excess = [], []
     for s in ("gyro", "accel"):
         if s in wander:
             sig = max(wander[s]["sigma"])
             tau = max((v for v in wander[s]["tau_s"] if v is not None), default=None)
+            if tau == 0.0:  # no correlation between windows: not a wander they can show
+                excess.append(f"{s} {sig:.3g} (output units)")
+                continue
             parts.append(
                 f"{s} {sig:.3g} (output units)"
                 + ("" if tau is None else f", correlation time {tau / 3600:.3g} h")
             )
-    return (
-        "the windows share a bias wander ("
-        + "; ".join(parts)
-        + f", {wander.get('source', 'given')}): the fit and its 1-sigma carry it (noise_model)"
-    )
+    out = []
+    if parts:
+        out.append("the windows share a bias wander (" + "; ".join(parts)
+                   + f", {wander.get('source', 'given')}): the fit and its 1-sigma carry it "
+                   "(noise_model)")  # fmt: skip
+    if excess:
+        out.append(
+            "the windows scatter more than their noise, independently of one another ("
+            + "; ".join(excess)
+            + "): not a wander the windows' spacing can show but model error or a wander "
+            "faster than the spacing; the 1-sigma carries it, recal diagnose looks for the "
+            "missing effect"
+        )
+    return "; ".join(out)
