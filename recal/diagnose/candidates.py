@@ -14,6 +14,7 @@ import numpy as np
 from scipy import stats
 
 from recal.diagnose.fit import FIT_INFO_MIN, Fit, _fit, heldout_chi2_red
+from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit
 from recal.diagnose.trust import _trade_off
 from recal.errors import RecalInputError
 from recal.model.plugins import values_by_term
@@ -73,6 +74,11 @@ class Candidate:
     #: temperature_rate_c_per_h, time_h, specific_force_g (M, 3)); for an effect of the input
     #: itself (no context), the specific force when the accel is calibrated. Not in the JSON.
     drivers: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the model with the effect, its misfit as noise (recal.diagnose.hypotheses)
+    noise: NoiseFit | None = None
+    #: the four hypotheses' figures (IC, recal.diagnose.hypotheses) and which explains best:
+    #: {"nothing", "noise", "effect", "effect+noise", "best", "null", "test"}
+    hypotheses: dict[str, Any] = field(default_factory=dict)
 
     @property
     def disagreement(self) -> str:
@@ -140,6 +146,7 @@ class Candidate:
             "trustworthy": self.trustworthy,
             "check": self.check,
             "heldout_chi2_red": num(self.heldout_chi2_red),
+            "hypotheses": self.hypotheses,
         }
 
 
@@ -210,6 +217,7 @@ def _score(
     cand.uncertainty = dict(zip(term.params, map(float, fit.sd[sl]), strict=True))
     _trade_off(cand, current, fit, sl)
     cand.heldout_chi2_red = heldout_chi2_red(fit)
+    cand.noise = noise_fit(fit)
     return cand
 
 
@@ -287,6 +295,46 @@ def _family_pvalues(
     min_p = np.min(null_p, axis=0)
     for c in ok:
         c.p_adjusted = float((1 + np.sum(min_p <= c.p_value)) / (1 + NULL_DRAWS))
+        c.significant = bool(c.p_adjusted < ALPHA and c.delta_bic < 0)
+
+
+def against_noise(noise: NoiseFit, scored: list[Candidate], n: int) -> None:
+    """Each candidate judged against the best explanation without it (recal.diagnose.hypotheses):
+    the current model with independent windows, or with the noise (wander, excess) its
+    residuals hold. ``delta_bic`` becomes the candidate's best figure (with or without noise)
+    minus that best, plus its directions' price (with no noise admitted anywhere: the plain
+    delta BIC). Where the best null holds noise, the F-test's premise (independent windows)
+    fails, so the test is the restricted likelihood ratio of effect plus noise over noise,
+    the noise re-fitted on both sides, chi-square with the effect's directions, times the
+    candidates tried (Bonferroni); otherwise the bootstrap's family-wise p stands.
+    ``significant``: that p below ALPHA and ``delta_bic`` below 0."""
+    ok = [c for c in scored if c.identifiable and c.noise is not None]
+    null_ic = noise.best_ic
+    null = NOISE if noise.best_with_noise else "nothing"
+    for c in ok:
+        assert c.noise is not None
+        price = c.added_directions * np.log(n)
+        effect, both = c.noise.ic(False) + price, c.noise.ic(True) + price
+        with_noise = bool(c.noise.admitted) and both < effect
+        c.delta_bic = min(effect, both) - null_ic
+        c.hypotheses = {
+            "nothing": round(float(noise.ic(False)), 3),
+            "noise": round(float(noise.ic(True)), 3) if noise.admitted else None,
+            "effect": round(float(effect), 3),
+            "effect+noise": round(float(both), 3) if c.noise.admitted else None,
+            "best": ("effect+noise" if with_noise else "effect") if c.delta_bic < 0 else null,
+            "null": null,
+            "noise_null": noise.to_json_dict(),
+            "noise_with_effect": c.noise.to_json_dict(),
+        }
+        if null == NOISE:
+            lr = (noise.chi2 - noise.gain_all) - (c.noise.chi2 - c.noise.gain_all)
+            c.p_value = float(stats.chi2.sf(max(lr, 0.0), c.added_directions))
+            c.p_adjusted = min(1.0, c.p_value * len(ok))
+            c.hypotheses["test"] = {"likelihood_ratio": round(float(lr), 3),
+                                    "dof": c.added_directions, "candidates": len(ok)}  # fmt: skip
+        else:
+            c.hypotheses["test"] = "F, family-wise by parametric bootstrap"
         c.significant = bool(c.p_adjusted < ALPHA and c.delta_bic < 0)
 
 

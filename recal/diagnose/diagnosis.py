@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -11,6 +12,7 @@ from scipy import stats
 
 from recal.diagnose.candidates import ALPHA, Candidate
 from recal.diagnose.fit import INDEXING, Fit, _finite, heldout_chi2_red, worst_windows
+from recal.diagnose.hypotheses import NoiseFit, describe
 from recal.model.plugins import site_context, values_by_term
 from recal.solve.calibrate import CalibrationResult
 
@@ -42,10 +44,20 @@ class Diagnosis:
     warning: str = ""
     #: seed coefficient -> shift from the baseline to the suggested model, baseline 1-sigma
     core_shift: dict[str, float] = field(default_factory=dict)
+    #: the baseline's misfit as noise (wander or independent excess), and the final model's
+    #: (recal.diagnose.hypotheses)
+    noise: NoiseFit | None = None
+    final_noise: NoiseFit | None = None
+    #: what explains the misfit: "effect", "wander", "excess", "nothing" (fits the floor) or
+    #: "unexplained"; and the figures of the hypotheses compared (IC, lower is better)
+    explanation: str = ""
+    hypotheses: dict[str, Any] = field(default_factory=dict)
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
             "verdict": self.verdict,
+            "explanation": self.explanation,
+            "hypotheses": self.hypotheses,
             "model_fails": self.model_fails,
             "trustworthy": self.trustworthy,
             "warning": self.warning,
@@ -64,15 +76,20 @@ class Diagnosis:
             "chi2_red_with_suggested": _finite(self.final_chi2_red),
             "noise_known": self.baseline.problem.noise_known,
             "noise_model": self.baseline.noise_model or None,
-            "method": "LM fits with the baseline's residual weights; F-test and BIC per "
-            "candidate; confounding from the correlation of fitted signatures",
+            "method": "LM fits with independent windows and the baseline's weights; per model "
+            "the wander or excess of its window residuals by restricted likelihood; per "
+            "candidate four hypotheses (nothing, noise, effect, effect+noise) on one scale, "
+            "F-test (or the likelihood ratio against a noise null) and BIC; confounding from "
+            "the correlation of fitted signatures",
             "alpha": ALPHA,
         }
 
 
-def _rung(label: str, effect: str, fit: Fit, previous: Fit | None, n: int) -> dict[str, Any]:
-    """One step of the model ladder: chi2 ratio per invariant (RMS / noise floor) and the
-    change of BIC from the step before."""
+def _rung(
+    label: str, effect: str, fit: Fit, previous: Fit | None, n: int, noise: NoiseFit | None = None
+) -> dict[str, Any]:
+    """One step of the model ladder: chi2 ratio per invariant (RMS / noise floor), the change
+    of BIC from the step before, and the noise its residuals hold (wander, excess)."""
     raw = fit.problem.raw_residuals(fit.theta[None])
     ratio = {}
     for k, v in raw.items():
@@ -90,11 +107,14 @@ def _rung(label: str, effect: str, fit: Fit, previous: Fit | None, n: int) -> di
         "delta_bic": None if step is None else _finite(step),
         "heldout_chi2_red": _finite(heldout_chi2_red(fit)) if n > fit.rank else None,
         "directions": fit.rank,
+        "noise": describe(noise) if noise is not None else "",
     }
 
 
-def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
-    """The verdict: fits to the floor, or the model still fails (and where, and with what)."""
+def _conclude(d: Diagnosis, final: Fit, n: int, picked: Sequence[Candidate] = ()) -> None:
+    """The verdict: what explains the misfit (an effect, a wander, an independent excess, or
+    nothing), what was rejected and by how much (recal.diagnose.hypotheses), or that the model
+    still fails (and where)."""
     dof = max(n - final.rank, 1)
     d.residual_correlations = _residual_correlations(final, d.baseline)
     d.worst_positions, d.worst_slews = worst_windows(final)
@@ -116,8 +136,13 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
         ) + "; the window noise is unknown, so whether the residual reaches the floor is unknown"
         d.verdict += f"; {d.warning}" if d.warning else ""
         return
+    noise0 = d.noise or NoiseFit(float("nan"))
+    noise = d.final_noise or NoiseFit(final.rss)
+    d.hypotheses = {"baseline": noise0.to_json_dict(), "final": noise.to_json_dict()}
     p_fit = float(stats.chi2.sf(final.rss, dof))
-    d.model_fails = p_fit < ALPHA
+    # what the final model's residual holds beyond the windows' noise, if anything earns it
+    rest = noise.kinds if noise.best_with_noise else set()
+    d.model_fails = p_fit < ALPHA and rest != {"wander"}
     traded = [c.effect for c in d.candidates if c.effect in d.suggested_effects and c.warning]
     caveat = (
         f"; but {', '.join(traded)} trades off with the seed coefficients (see the warning): "
@@ -125,48 +150,96 @@ def _conclude(d: Diagnosis, final: Fit, n: int) -> None:
         if traded
         else ""
     ) + (f"; {d.warning}" if d.warning else "")
-    wander = (d.baseline.noise_model or {}).get("wander")
-    if not d.model_fails:
-        d.verdict = (
-            f"with {added} the residual is at the noise floor (chi2_red {d.chi2_red:.3g} -> "
-            f"{d.final_chi2_red:.3g})"
-            if added
-            else (
-                "the misfit is bias wander between the windows ("
-                + _wander_summary(wander)
-                + f"), not a missing effect: with it the model fits to the noise floor "
-                f"(chi2_red {d.chi2_red:.3g})"
-                if wander
-                else f"the model fits to the noise floor (chi2_red {d.chi2_red:.3g}); no effect "
-                "missing"
+    chi2 = f"chi2_red {d.chi2_red:.3g}" + (f" -> {d.final_chi2_red:.3g}" if added else "")
+    if added:
+        d.explanation = "effect"
+        head = f"the misfit is {added} ({_evidence(picked[0])})" + _rejected(picked[0], noise0)
+        if not d.model_fails:
+            tail = (
+                f"with it the residual is at the noise floor ({chi2})"
+                if not rest
+                else f"with it the rest is bias wander between the windows ({describe(noise)}; "
+                f"{chi2})"
             )
-        ) + caveat
+            d.verdict = f"{head}; {tail}{caveat}"
+            return
+        d.verdict = head + "; " + _fails(d, final, p_fit, noise, f"with {added}")
         return
+    best = next((c for c in d.candidates if c.identifiable and c.hypotheses), None)
+    if not d.model_fails and not rest:
+        d.explanation = "nothing"
+        d.verdict = f"the model fits to the noise floor ({chi2}); no effect missing" + caveat
+        return
+    if rest == {"wander"}:
+        d.explanation = "wander"
+        d.verdict = (
+            f"the misfit is bias wander between the windows ({describe(noise)}), not a missing "
+            f"effect: {_effect_rejected(best)}; with the wander the model fits ({chi2})" + caveat
+        )
+        return
+    d.explanation = "excess" if "excess" in rest else "unexplained"
+    d.verdict = _fails(d, final, p_fit, noise, "with the seed model") + (
+        f"; {_effect_rejected(best)}" if best is not None else ""
+    )
+
+
+def _evidence(c: Candidate) -> str:
+    test = c.hypotheses.get("test")
+    how = "likelihood ratio against the noise" if isinstance(test, dict) else "family-wise"
+    return f"p {c.p_adjusted:.2g}, {how}"
+
+
+def _rejected(c: Candidate, noise0: NoiseFit) -> str:
+    """What the effect was preferred to, and by how much (IC: lower is better)."""
+    h = c.hypotheses
+    if not h:
+        return ""
+    best = min(v for k, v in h.items() if k in ("effect", "effect+noise") and v is not None)
+    if h.get("noise") is not None:
+        kind = " and ".join(sorted(noise0.kinds)) or "noise"
+        what = "bias wander" if kind == "wander" else f"{kind} ({describe(noise0)})"
+        return (
+            f"; {what} alone explains it worse (IC {h['noise']:.1f} against {best:.1f}, "
+            f"delta {h['noise'] - best:+.1f})"
+        )
+    return f"; no wander explains it (IC with independent windows {h['nothing']:.1f} against {best:.1f})"
+
+
+def _effect_rejected(c: Candidate | None) -> str:
+    if c is None:
+        return "no candidate effect could be fitted"
+    return (
+        f"the best candidate, {c.effect}, explains it worse (delta IC {c.delta_bic:+.1f})"
+        if c.delta_bic >= 0
+        else f"the best candidate, {c.effect}, explains it no better than chance "
+        f"(p {c.p_adjusted:.2g})"
+    )
+
+
+def _fails(d: Diagnosis, final: Fit, p_fit: float, noise: NoiseFit, model: str) -> str:
     per = ", ".join(map(str, d.worst_positions))
     if d.worst_slews:
         per += "; worst slews " + ", ".join(
             f"{s['slew']} (rows {s['from_row']}->{s['to_row']})" for s in d.worst_slews
         )
     corr = ", ".join(f"{k} (r = {v:+.2f})" for k, v in list(d.residual_correlations.items())[:3])
-    model = f"with {added}" if added else "with the seed model"
-    d.verdict = (
+    excess = [t for t in noise.admitted if t.kind == "excess"] if noise.best_with_noise else []
+    why = (
+        f"; the windows scatter more than their noise independently of one another "
+        f"({describe(noise)}; no correlation at the {noise.tau_floor_s / 3600:.2g} h between "
+        "windows: not a wander they can show, but model error, or a wander faster than the "
+        "windows' spacing)"
+        if excess
+        else ""
+    )
+    return (
         f"the model still fails: chi2_red {d.final_chi2_red:.3g} {model} (p = {p_fit:.2g} "
-        "against the noise floor) and no candidate explains the rest; worst positions "
+        f"against the noise floor) and no candidate explains the rest{why}; worst positions "
         f"(0-based rows) {per}"
         + (f"; the residual correlates with {corr}" if corr else "")
         + "; an effect outside the catalogue may be missing: write it as a --plugin"
         + (f"; {d.warning}" if d.warning else "")
     )
-
-
-def _wander_summary(wander: dict[str, Any]) -> str:
-    parts = []
-    for s in ("gyro", "accel"):
-        if s in wander:
-            taus = [v for v in wander[s]["tau_s"] if v is not None]
-            tau = f", tau {max(taus) / 3600:.3g} h" if taus else ""
-            parts.append(f"{s} sigma {max(wander[s]['sigma']):.3g}{tau}")
-    return "; ".join(parts)
 
 
 def _residual_correlations(fit: Fit, base: CalibrationResult) -> dict[str, float]:

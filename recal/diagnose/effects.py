@@ -73,10 +73,11 @@ from recal.diagnose.candidates import (  # noqa: F401 - re-exported
     _confounding,
     _family_pvalues,
     _score,
+    against_noise,
     default_candidates,
     noise_correlation,
 )
-from recal.diagnose.diagnosis import Diagnosis, _conclude, _rung, _wander_summary
+from recal.diagnose.diagnosis import Diagnosis, _conclude, _rung
 from recal.diagnose.fit import (  # noqa: F401 - re-exported
     FIT_INFO_MIN,
     INDEXING,
@@ -87,6 +88,7 @@ from recal.diagnose.fit import (  # noqa: F401 - re-exported
     heldout_chi2_red,
     worst_windows,
 )
+from recal.diagnose.hypotheses import noise_fit
 from recal.diagnose.trust import (  # noqa: F401 - re-exported
     CORE_SHIFT_SIGMA,
     CORRELATION_WARN,
@@ -110,7 +112,11 @@ def diagnose(
 ) -> Diagnosis:
     """Rank candidate effects by how much of the misfit they explain (see module doc)."""
     opt = replace(options or CalibrationOptions(), method="lm", refuse_at_solution=False)
-    base = calibrate(positions, opt)
+    calibrated = calibrate(positions, opt)
+    # Every model is fitted with independent windows; what the misfit holds beyond the windows'
+    # noise (a wander, an independent excess) is asked of each model in turn
+    # (recal.diagnose.hypotheses), never put into the baseline first.
+    base = replace(calibrated, problem=calibrated.problem.with_wander(None, calibrated.theta))
     sensors = base.problem.sensors
     pool = {t.name: t for t in default_candidates(positions, sensors, opt.t0_c)}
     pool.update({t.name: t for t in opt.plugin_terms if t.sensor in sensors})
@@ -134,25 +140,18 @@ def diagnose(
             f"{FIT_INFO_MIN:g} of their typical change, calibrate to 1), so its chi2_red "
             f"({fit0.rss / (n - fit0.rank):.3g}) differs from calibrate's ({base.chi2_red:.3g})"
         )
-    wander = (base.noise_model or {}).get("wander")
-    if wander:
-        notes.append(
-            "wander first: the windows share a bias wander (recal.solve.wander; "
-            + _wander_summary(wander)
-            + "), which explains part of the misfit without any effect; every candidate is "
-            "scored against the noise with it (a slow drift in time is wander, not an effect, "
-            "unless an effect explains it better)"
-        )
     ranked: list[Candidate] = []
     suggested: list[str] = []
     picked: list[Candidate] = []  # each suggestion as scored against the model it joined
     current = fit0
-    ladder = [_rung("baseline", "", current, None, n)]
+    noise0 = noise = noise_fit(current)
+    ladder = [_rung("baseline", "", current, None, n, noise)]
     for round_ in range(max_rounds):
         scored = [
             _score(current, base, opt, chosen + suggested, t, n, len(pool)) for t in pool.values()
         ]
         _family_pvalues(current, scored, n, np.random.default_rng(opt.seed + round_))
+        against_noise(noise, scored, n)
         if round_ == 0:
             ranked = scored
         best = min((c for c in scored if c.significant), key=lambda c: c.delta_bic, default=None)
@@ -163,7 +162,8 @@ def diagnose(
         pool.pop(best.effect)
         start = values_by_term(current.problem.layout, current.theta)
         previous, current = current, _fit(base, opt, chosen + suggested, start=start)
-        ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n))
+        noise = noise_fit(current)
+        ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n, noise))
     ranked.sort(key=lambda c: (not c.identifiable, np.nan_to_num(c.delta_bic, nan=np.inf)))
     for c in ranked:  # for the disagreement note: who explains this misfit clearly better
         c.explained_better_by = next((o.effect for o in ranked if o.identifiable and
@@ -171,7 +171,7 @@ def diagnose(
     _confounding(ranked)
     final_raw = current.problem.raw_residuals(current.theta[None])
     d = Diagnosis(
-        baseline=base,
+        baseline=calibrated,
         invariants=_invariant_rows(fit0),
         candidates=ranked,
         suggested_effects=suggested,
@@ -181,9 +181,11 @@ def diagnose(
         final_residuals={k: v[0] for k, v in final_raw.items()},
         ladder=ladder,
         notes=notes,
+        noise=noise0,
+        final_noise=noise,
     )
     _trust(d, fit0, current, picked)
-    _conclude(d, current, n)
+    _conclude(d, current, n, picked)
     return d
 
 

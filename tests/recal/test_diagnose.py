@@ -114,20 +114,39 @@ def test_html_report_is_self_contained():
     assert "http" not in page.replace(names[0], "").replace(names[1], "")  # no external assets
 
 
-def test_a_candidate_whose_delta_bic_and_p_value_disagree_is_explained():
-    """A real temperature effect: other candidates take a share of its misfit (large negative
-    delta BIC), but the F-test, weighing against the misfit they leave, does not rank them."""
+def test_a_candidate_taking_a_share_of_another_effects_misfit_is_judged_against_the_excess():
+    """A real temperature effect: other candidates take a share of its misfit, but the baseline's
+    misfit is just as well an independent excess on each window (recal.diagnose.hypotheses),
+    so a share is no evidence: their delta BIC is measured from that best null and stays
+    positive, and only the effect that explains the residual is significant."""
     truth = CoefficientSet.seed_truth()
     truth.values["gyro.bias_temperature"] = np.array([0.0015, -0.0015, 0.0015])
     swing = TemperatureSpec(start_c=15.0, slope_c_per_h=4.0, swing_c=8.0, period_h=0.7)
     pos = simulate_positions(truth, "random", 24, 40.0, seed=0, temperature=swing,
                              hidden=[CAT["gyro.bias_temperature"]])  # fmt: skip
     d = diagnose(pos, CalibrationOptions(latitude_deg=40.0))
-    assert d.candidates[0].effect == "gyro.bias_temperature" and d.candidates[0].significant
-    assert d.candidates[0].disagreement == ""
-    odd = [c for c in d.candidates[1:3] if c.delta_bic < -10 and not c.significant]
-    assert odd, [(c.effect, c.delta_bic, c.p_adjusted) for c in d.candidates[:3]]
-    for c in odd:
-        assert "another effect explains better" in c.disagreement
-        assert c.to_json_dict()["disagreement"] == c.disagreement
-        assert f"note: {c.disagreement}" in format_diagnosis(d)
+    top = d.candidates[0]
+    assert top.effect == "gyro.bias_temperature" and top.significant
+    assert top.disagreement == ""
+    assert top.hypotheses["null"] == "noise" and top.hypotheses["best"] == "effect"
+    assert top.hypotheses["effect"] < top.hypotheses["noise"] < top.hypotheses["nothing"]
+    rest = [c for c in d.candidates[1:] if c.identifiable]
+    assert rest and not any(c.significant for c in rest)
+    shares = [c for c in rest if c.explained_fraction > 0.3]
+    assert shares, [(c.effect, c.explained_fraction) for c in rest]
+    assert all(c.delta_bic > 0 for c in shares), [(c.effect, c.delta_bic) for c in shares]
+    assert d.explanation == "effect" and "alone explains it worse" in d.verdict
+
+
+def test_a_candidate_whose_delta_bic_and_p_value_disagree_is_explained():
+    """delta BIC below 0 and a family-wise p above ALPHA: the note says why, and names the
+    effect that explains the misfit better."""
+    from recal.diagnose.candidates import Candidate
+
+    c = Candidate("gyro.bias_drift", "", True, delta_bic=-12.0, p_adjusted=0.2,
+                  explained_fraction=0.3, added_directions=3,
+                  explained_better_by="gyro.bias_temperature")  # fmt: skip
+    assert "another effect explains better (gyro.bias_temperature)" in c.disagreement
+    assert c.to_json_dict()["disagreement"] == c.disagreement
+    agree = Candidate("gyro.bias_temperature", "", True, delta_bic=-50.0, p_adjusted=1e-9)
+    assert agree.disagreement == ""

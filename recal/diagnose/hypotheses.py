@@ -1,0 +1,222 @@
+"""Effect or noise: what explains a fitted model's misfit beyond the windows' own noise.
+
+Every model diagnose fits (the baseline, and the baseline with each candidate effect) is fitted
+with the windows taken as independent. Its window residuals are then asked whether they share a
+bias wander (:mod:`recal.solve.wander`), by the same restricted likelihood (REML) the wander fit
+uses: the coefficients are re-fitted, linearised, under each candidate covariance, so a wander
+that looks like a coefficient is not counted twice. Per triad the correlation time is chosen
+among 0 and the times the windows' spacing can show (:func:`recal.solve.wander.tau_floor_s`):
+
+* tau at or above the floor: a **wander**, a bias the windows share the more, the closer they are;
+* tau 0: **excess** scatter, independent on each window. Neighbouring windows do not share it,
+  so it is not a wander they can show: it is model error (an effect that changes with the
+  orientation, a missing term), or a wander faster than the spacing, and diagnose says so.
+
+Comparing models with different coefficients needs a likelihood that does not depend on how
+their coefficients are scaled: -2 ln L_R + ln det(J'J), which for independent windows is the
+chi^2 of the fit. So each hypothesis gets one figure on one scale (:attr:`NoiseFit.ic`)::
+
+    IC = chi^2 - gain + 11.34 x (triads with wander or excess) + (effect directions) x ln(n)
+
+gain being 2 ln of the restricted likelihood ratio of the noise over none (0 without). The
+noise pays what calibrate's wander test makes it earn (:data:`WANDER_SIGNIFICANCE`), an effect
+its BIC price. The four hypotheses of a candidate (nothing, noise, effect, effect plus noise)
+are the baseline's two figures and the candidate's two: the candidate explains the misfit when
+its best beats the baseline's best. An effect whose driver is measured and which explains the
+residual fits it with a white remainder; a wander explains it only by being flexible and pays
+the determinant of its covariance for that.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from recal.diagnose.fit import Fit
+from recal.solve.wander import (
+    WANDER_SIGNIFICANCE,
+    TriadWander,
+    WanderModel,
+    correlation_times,
+    estimate_wander,
+    tau_floor_s,
+    window_sessions,
+    window_times,
+)
+
+try:  # TEMPORARY until the linear-time wander lands
+    from recal.solve.wander import wander_gain
+except ImportError:  # pragma: no cover
+    from recal.solve.wander import wander_covariance
+
+    def wander_gain(r_std, sigma, sensitivity, t, model, jacobian=None, sessions=None):  # type: ignore[no-redef]
+        R = len(r_std)
+        U, sv, _ = np.linalg.svd(jacobian, full_matrices=False)
+        keep = sv > 1e-10 * sv.max()
+        J = U[:, keep] * sv[keep]
+
+        def nll(C):
+            L = np.linalg.cholesky(C)
+            z = np.linalg.solve(L, r_std)
+            Jw = np.linalg.solve(L, J)
+            A = Jw.T @ Jw
+            b = Jw.T @ z
+            return (
+                z @ z
+                - b @ np.linalg.solve(A, b)
+                + 2 * np.sum(np.log(np.diag(L)))
+                + np.linalg.slogdet(A)[1]
+            )
+
+        C = np.eye(R) + wander_covariance(sensitivity, t, model, sessions) / np.outer(sigma, sigma)
+        return nll(np.eye(R)) - nll(C)
+
+
+#: Names of the noise hypotheses, as the JSON gives them.
+WHITE, NOISE = "independent", "noise"
+
+
+@dataclass(frozen=True)
+class TriadNoise:
+    """One triad's noise beyond the windows' own, at its maximum-likelihood pair."""
+
+    sensor: str
+    sigma: float  # steady-state 1-sigma, output units
+    tau_s: float  # 0: independent excess
+    gain: float  # 2 ln L_R gain of this triad (the others' noise held)
+    admitted: bool  # earns WANDER_SIGNIFICANCE
+
+    @property
+    def kind(self) -> str:
+        return "excess" if self.tau_s == 0.0 else "wander"
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "sensor": self.sensor,
+            "kind": self.kind,
+            "sigma": self.sigma,
+            "tau_s": self.tau_s,
+            "gain_2lnL": round(self.gain, 3),
+            "admitted": self.admitted,
+        }
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """A fitted model's misfit as noise: its chi^2 with independent windows and, per triad,
+    the wander or excess its residuals hold (module doc)."""
+
+    chi2: float
+    triads: tuple[TriadNoise, ...] = ()
+    #: 2 ln L_R of the admitted triads' noise together over none
+    gain: float = 0.0
+    #: the same with every triad's maximum-likelihood noise, admitted or not (for the
+    #: likelihood-ratio test of an effect against a noise null, where the noise is re-fitted)
+    gain_all: float = 0.0
+    tau_floor_s: float = 0.0
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def admitted(self) -> tuple[TriadNoise, ...]:
+        return tuple(t for t in self.triads if t.admitted)
+
+    def ic(self, with_noise: bool) -> float:
+        """chi^2 - gain + the noise's price (module doc), without the effect's price."""
+        if not with_noise or not self.admitted:
+            return self.chi2
+        return self.chi2 - self.gain + WANDER_SIGNIFICANCE * len(self.admitted)
+
+    @property
+    def best_with_noise(self) -> bool:
+        """True when the admitted noise explains the misfit better than independent windows."""
+        return bool(self.admitted) and self.ic(True) < self.ic(False)
+
+    @property
+    def best_ic(self) -> float:
+        return min(self.ic(False), self.ic(True))
+
+    @property
+    def kinds(self) -> set[str]:
+        return {t.kind for t in self.admitted}
+
+    def model(self) -> WanderModel:
+        """The admitted noise as a wander model (tau 0 where it is excess)."""
+        return WanderModel(
+            {
+                t.sensor: TriadWander(np.full(3, t.sigma), np.full(3, t.tau_s))
+                for t in self.admitted
+            },
+            "diagnose: maximum likelihood",
+        )
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            WHITE: _num(self.ic(False)),
+            NOISE: _num(self.ic(True)) if self.admitted else None,
+            "triads": [t.to_json_dict() for t in self.triads],
+            "tau_floor_s": self.tau_floor_s,
+        }
+
+
+def _num(v: float) -> float | None:
+    return round(float(v), 3) if math.isfinite(v) else None
+
+
+def noise_fit(fit: Fit) -> NoiseFit:
+    """Wander or excess in ``fit``'s window residuals (module doc); ``fit`` must have been made
+    with independent windows."""
+    p = fit.problem
+    windows = p.window_invariants
+    if not windows or not p.noise_known or fit.jac is None or not np.isfinite(fit.rss):
+        return NoiseFit(fit.rss)
+    t = window_times(p.positions.columns, p.M)
+    sessions = window_sessions(p.positions.columns, p.M)
+    raw = p.raw_residuals(fit.theta[None])
+    sigma_w = p.window_sigma()
+    r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
+    J = fit.jac[: len(r_std)]
+    sens = p.wander_sensitivity(fit.theta)
+    span = 0.0 if t is None else float(np.ptp(t))
+    taus = correlation_times(t, sessions, span)
+    _, fits = estimate_wander(r_std, sigma_w, sens, t, taus=taus, jacobian=J, sessions=sessions)
+    triads = tuple(
+        TriadNoise(
+            f.sensor,
+            float(f.sigma_ml),
+            float(f.tau_ml_s),
+            float(f.gain),
+            bool(f.significant) and f.sigma_ml > 0,
+        )  # fmt: skip
+        for f in fits
+    )
+
+    def gain_of(ts: tuple[TriadNoise, ...]) -> float:
+        ts = tuple(x for x in ts if x.sigma > 0)
+        if not ts:
+            return 0.0
+        model = WanderModel({x.sensor: TriadWander(np.full(3, x.sigma), np.full(3, x.tau_s))
+                             for x in ts})  # fmt: skip
+        return float(wander_gain(r_std, sigma_w, sens, t, model, jacobian=J, sessions=sessions))
+
+    admitted = tuple(x for x in triads if x.admitted)
+    return NoiseFit(
+        float(fit.rss),
+        triads,
+        gain=gain_of(admitted),
+        gain_all=gain_of(triads),
+        tau_floor_s=0.0 if t is None else tau_floor_s(t, sessions),
+    )
+
+
+def describe(noise: NoiseFit) -> str:
+    """'gyro wander 5.6 (output units), tau 8 h; accel excess 2e-05' of the admitted noise."""
+    parts = []
+    for x in noise.admitted:
+        if x.kind == "wander":
+            parts.append(f"{x.sensor} wander {x.sigma:.3g}, tau {x.tau_s / 3600:.3g} h")
+        else:
+            parts.append(f"{x.sensor} excess {x.sigma:.3g}")
+    return "; ".join(parts) + " (output units)" if parts else ""
