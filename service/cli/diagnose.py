@@ -19,7 +19,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="compare the model with the measurements and rank missing physical effects",
         description="Fit the model, compare each invariant's residual with its noise floor, then "
         "try every catalogue (and plugin) effect on top and rank them by delta BIC, F-test "
-        "p-value and the share of the excess residual they explain.",
+        "p-value and the share of the excess residual they explain; each is weighed against "
+        "a bias wander or an independent excess explaining the misfit instead.",
     )
     add_calibration_arguments(p)
     p.add_argument(
@@ -52,6 +53,35 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _hypotheses_lines(d: Diagnosis) -> list[str]:
+    """The hypotheses compared for the leading candidate (recal.diagnose.hypotheses): one figure
+    each on one scale, lower explaining better."""
+    from recal.diagnose.hypotheses import describe
+
+    top = next((c for c in d.candidates if c.identifiable and c.hypotheses), None)
+    if top is None or d.noise is None:
+        return []
+    h = top.hypotheses
+
+    def fig(v: float | None) -> str:
+        return "-" if v is None else f"{v:.1f}"
+
+    none = "none earns its price"
+    with_effect = (describe(top.noise) if top.noise is not None else "") or none
+    rows = [
+        ("nothing beyond the windows' noise", h["nothing"]),
+        (f"noise alone ({describe(d.noise) or none})", h["noise"]),
+        (top.effect, h["effect"]),
+        (f"{top.effect} + noise ({with_effect})", h["effect+noise"]),
+    ]
+    width = max(len(label) for label, _ in rows)
+    return [
+        "hypotheses (IC: chi2 - likelihood gain of the noise + prices; lower explains better):",
+        *(f"  {label:{width}s}  {fig(v):>10s}" for label, v in rows),
+        "",
+    ]
+
+
 def format_diagnosis(d: Diagnosis) -> str:
     doc = d.to_json_dict()
     lines = [f"{'invariant':12s} {'RMS':>11s} {'noise floor':>12s} {'ratio':>7s}"]
@@ -76,6 +106,7 @@ def format_diagnosis(d: Diagnosis) -> str:
             f"{shift:>11s}{similar}"
         )
     lines.append("")
+    lines += _hypotheses_lines(d)
     if len(doc["ladder"]) > 1:
         lines.append("model ladder: (held out: leave-one-position-out chi2 over its expectation)")
         for r in doc["ladder"]:
@@ -84,7 +115,8 @@ def format_diagnosis(d: Diagnosis) -> str:
             chi2 = "n/a" if r["chi2_red"] is None else f"{r['chi2_red']:.3g}"
             if r.get("heldout_chi2_red") is not None:
                 chi2 += f" (held out {r['heldout_chi2_red']:.3g})"
-            lines.append(f"  {r['model']:32s} chi2_red {chi2}{step}  (RMS/floor: {ratios})")
+            rest = f"; beyond the noise: {r['noise']}" if r.get("noise") else ""
+            lines.append(f"  {r['model']:32s} chi2_red {chi2}{step}  (RMS/floor: {ratios}){rest}")
         lines.append("")
     if d.suggested_effects:
         eff = ",+".join(d.suggested_effects)
