@@ -14,7 +14,8 @@ import numpy as np
 from scipy import stats
 
 from recal.diagnose.fit import FIT_INFO_MIN, Fit, _fit, heldout_chi2_red
-from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit
+from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit, window_inputs
+from recal.diagnose.noise_test import NOISE_NULL_DRAWS, noise_null_test
 from recal.diagnose.trust import _trade_off
 from recal.errors import RecalInputError
 from recal.model.plugins import values_by_term
@@ -298,15 +299,17 @@ def _family_pvalues(
         c.significant = bool(c.p_adjusted < ALPHA and c.delta_bic < 0)
 
 
-def against_noise(noise: NoiseFit, scored: list[Candidate], n: int) -> None:
+def against_noise(
+    current: Fit, noise: NoiseFit, scored: list[Candidate], n: int, rng: np.random.Generator
+) -> None:
     """Each candidate judged against the best explanation without it (recal.diagnose.hypotheses):
     the current model with independent windows, or with the noise (wander, excess) its
     residuals hold. ``delta_bic`` becomes the candidate's best figure (with or without noise)
     minus that best, plus its directions' price (with no noise admitted anywhere: the plain
     delta BIC). Where the best null holds noise, the F-test's premise (independent windows)
     fails, so the test is the restricted likelihood ratio of effect plus noise over noise,
-    the noise re-fitted on both sides, chi-square with the effect's directions, times the
-    candidates tried (Bonferroni); otherwise the bootstrap's family-wise p stands.
+    the noise re-fitted on both sides, family-wise by a parametric bootstrap of that null
+    (recal.diagnose.noise_test); otherwise the F-test's family-wise p stands.
     ``significant``: that p below ALPHA and ``delta_bic`` below 0."""
     ok = [c for c in scored if c.identifiable and c.noise is not None]
     null_ic = noise.best_ic
@@ -327,14 +330,25 @@ def against_noise(noise: NoiseFit, scored: list[Candidate], n: int) -> None:
             "noise_null": noise.to_json_dict(),
             "noise_with_effect": c.noise.to_json_dict(),
         }
-        if null == NOISE:
-            lr = (noise.chi2 - noise.gain_all) - (c.noise.chi2 - c.noise.gain_all)
-            c.p_value = float(stats.chi2.sf(max(lr, 0.0), c.added_directions))
-            c.p_adjusted = min(1.0, c.p_value * len(ok))
-            c.hypotheses["test"] = {"likelihood_ratio": round(float(lr), 3),
-                                    "dof": c.added_directions, "candidates": len(ok)}  # fmt: skip
-        else:
-            c.hypotheses["test"] = "F, family-wise by parametric bootstrap"
+        c.hypotheses["test"] = "F, family-wise by parametric bootstrap"
+    w = window_inputs(current)
+    tested = [c for c in ok if c.jac is not None]
+    if null == NOISE and w is not None and tested:
+        test = noise_null_test(
+            w.r_std, w.sigma, w.sensitivity, w.t, w.sessions, w.taus, w.jacobian,
+            [(c.effect.split(".", 1)[0], c.jac[: len(w.r_std)], c.added_directions)
+             for c in tested],
+            noise.model(), rng,
+        )  # fmt: skip
+        for c, lr, p, pf in zip(tested, test.lr, test.p_nominal, test.p_family, strict=True):
+            c.p_value, c.p_adjusted = float(p), float(pf)
+            c.hypotheses["test"] = {
+                "likelihood_ratio": round(float(lr), 3),
+                "dof": c.added_directions,
+                "null": "the noise's own draws (parametric bootstrap, family-wise)",
+                "draws": NOISE_NULL_DRAWS,
+            }
+    for c in ok:
         c.significant = bool(c.p_adjusted < ALPHA and c.delta_bic < 0)
 
 

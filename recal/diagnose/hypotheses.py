@@ -43,37 +43,10 @@ from recal.solve.wander import (
     correlation_times,
     estimate_wander,
     tau_floor_s,
+    wander_gain,
     window_sessions,
     window_times,
 )
-
-try:  # TEMPORARY until the linear-time wander lands
-    from recal.solve.wander import wander_gain
-except ImportError:  # pragma: no cover
-    from recal.solve.wander import wander_covariance
-
-    def wander_gain(r_std, sigma, sensitivity, t, model, jacobian=None, sessions=None):  # type: ignore[no-redef]
-        R = len(r_std)
-        U, sv, _ = np.linalg.svd(jacobian, full_matrices=False)
-        keep = sv > 1e-10 * sv.max()
-        J = U[:, keep] * sv[keep]
-
-        def nll(C):
-            L = np.linalg.cholesky(C)
-            z = np.linalg.solve(L, r_std)
-            Jw = np.linalg.solve(L, J)
-            A = Jw.T @ Jw
-            b = Jw.T @ z
-            return (
-                z @ z
-                - b @ np.linalg.solve(A, b)
-                + 2 * np.sum(np.log(np.diag(L)))
-                + np.linalg.slogdet(A)[1]
-            )
-
-        C = np.eye(R) + wander_covariance(sensitivity, t, model, sessions) / np.outer(sigma, sigma)
-        return nll(np.eye(R)) - nll(C)
-
 
 #: Names of the noise hypotheses, as the JSON gives them.
 WHITE, NOISE = "independent", "noise"
@@ -165,23 +138,53 @@ def _num(v: float) -> float | None:
     return round(float(v), 3) if math.isfinite(v) else None
 
 
-def noise_fit(fit: Fit) -> NoiseFit:
-    """Wander or excess in ``fit``'s window residuals (module doc); ``fit`` must have been made
-    with independent windows."""
+@dataclass(frozen=True)
+class WindowInputs:
+    """What the noise of a fit's window residuals is estimated from: the standardised residuals
+    (R,), their own 1-sigma, the Jacobian rows along the fit's directions (R, k), each triad's
+    sensitivity to its output (recal.solve.problem.Problem.wander_sensitivity), the windows'
+    mid-times and sessions, and the correlation times tried."""
+
+    r_std: np.ndarray
+    sigma: np.ndarray
+    jacobian: np.ndarray
+    sensitivity: Any
+    t: np.ndarray | None
+    sessions: np.ndarray | None
+    taus: list[float]
+
+
+def window_inputs(fit: Fit) -> WindowInputs | None:
+    """The window part of ``fit`` (None without window invariants, known noise or a Jacobian)."""
     p = fit.problem
     windows = p.window_invariants
     if not windows or not p.noise_known or fit.jac is None or not np.isfinite(fit.rss):
-        return NoiseFit(fit.rss)
+        return None
     t = window_times(p.positions.columns, p.M)
     sessions = window_sessions(p.positions.columns, p.M)
     raw = p.raw_residuals(fit.theta[None])
     sigma_w = p.window_sigma()
     r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
-    J = fit.jac[: len(r_std)]
-    sens = p.wander_sensitivity(fit.theta)
     span = 0.0 if t is None else float(np.ptp(t))
-    taus = correlation_times(t, sessions, span)
-    _, fits = estimate_wander(r_std, sigma_w, sens, t, taus=taus, jacobian=J, sessions=sessions)
+    return WindowInputs(r_std, sigma_w, fit.jac[: len(r_std)], p.wander_sensitivity(fit.theta),
+                        t, sessions, correlation_times(t, sessions, span))  # fmt: skip
+
+
+def noise_fit(fit: Fit) -> NoiseFit:
+    """Wander or excess in ``fit``'s window residuals (module doc); ``fit`` must have been made
+    with independent windows."""
+    w = window_inputs(fit)
+    if w is None:
+        return NoiseFit(fit.rss)
+    r_std, sigma_w, J, sens, t, sessions = (
+        w.r_std,
+        w.sigma,
+        w.jacobian,
+        w.sensitivity,
+        w.t,
+        w.sessions,
+    )
+    _, fits = estimate_wander(r_std, sigma_w, sens, t, taus=w.taus, jacobian=J, sessions=sessions)
     triads = tuple(
         TriadNoise(
             f.sensor,

@@ -1,0 +1,168 @@
+"""Is an effect needed when the misfit may be noise? The family-wise test of candidate effects
+against a noise null (a wander, or an independent excess, recal.diagnose.hypotheses), by a
+parametric bootstrap of the restricted likelihood ratio.
+
+The statistic of a candidate is the restricted (REML) likelihood ratio of the current model plus
+the effect over the current model, the noise of the effect's triad re-fitted on both sides (its
+sigma and tau profiled over a grid; the other triad's noise held at the null's estimate):
+
+    LR = min over (sigma, tau) of -2 ln L_R(current) - min over (sigma, tau) of -2 ln L_R(+effect)
+
+Tens of windows pin a wander's sigma and tau poorly, and a Gauss-Markov bias with a correlation
+time near the session's span often looks like a trend: an effect that follows time, or a
+temperature that ramps with it, then takes a share of one wander realisation, and the wander
+fitted after it shrinks. Against chi-square(k) such an LR comes out at 15-20 on wander alone
+(benchmarks/bench_wander.py's units; 5 of 6 proposed an effect). So the null distribution is
+drawn instead: residuals from the null's own noise (its maximum-likelihood wander or excess),
+every candidate's LR computed exactly as for the data, and a candidate's family-wise p the share
+of draws in which the smallest nominal p of all candidates is below its own (Westfall-Young
+min-p, as the F-test's bootstrap in recal.diagnose.candidates). An effect that follows a
+measured driver the wander cannot mimic (a temperature cycle, the orientation) keeps an LR far in
+the tail; one that a wander realisation mimics does not.
+
+Linearised and dense (R^2 memory, R^3 per correlation time): each model's coefficients enter as
+the span of their Jacobian (REML needs no more), each correlation time is one
+eigendecomposition, each draw a few matrix products.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+from scipy.linalg import solve_triangular
+
+from recal.solve.wander import (
+    TriadWander,
+    WanderModel,
+    WanderSensitivity,
+    as_sensitivity,
+    wander_covariance,
+)
+
+#: Parametric-bootstrap draws of the null (family-wise p resolution 1 / (draws + 1)).
+NOISE_NULL_DRAWS = 400
+#: The sigma grid: log10 steps around the residuals' scale (a 0.17-decade step costs under 0.2
+#: in 2 ln L at the maximum).
+_LOG_SIGMA = np.linspace(-3.0, 2.5, 34)
+
+
+@dataclass(frozen=True)
+class NoiseNullTest:
+    """Per candidate: the observed LR, its nominal chi-square p and its family-wise p."""
+
+    lr: np.ndarray
+    p_nominal: np.ndarray
+    p_family: np.ndarray
+
+
+def _orth(J: np.ndarray) -> np.ndarray:
+    U, sv, _ = np.linalg.svd(J, full_matrices=False)
+    return U[:, sv > 1e-10 * sv.max()] if sv.size and sv.max() > 0 else U[:, :0]
+
+
+def _leading(J: np.ndarray, k: int) -> np.ndarray:
+    U, _, _ = np.linalg.svd(J, full_matrices=False)
+    return U[:, :k]
+
+
+def _profile_min(
+    Y: np.ndarray,
+    Q: np.ndarray,
+    lam: np.ndarray,
+    V: np.ndarray,
+    s2_grid: np.ndarray,
+) -> np.ndarray:
+    """min over s2 of -2 ln L_R (up to a constant shared by every model and draw) of each
+    column of Y (already whitened by the other triads' noise), for the model spanning Q:
+    covariance I + s2 V diag(lam) V'."""
+    Z = V.T @ Y  # (R, B)
+    Jv = V.T @ Q  # (R, k)
+    best = np.full(Y.shape[1], np.inf)
+    for s2 in s2_grid:
+        d = 1.0 / (1.0 + s2 * lam)
+        A = Jv.T @ (d[:, None] * Jv)
+        L = np.linalg.cholesky(A + 1e-12 * np.eye(len(A)))
+        b = solve_triangular(L, Jv.T @ (d[:, None] * Z), lower=True)
+        val = (
+            np.einsum("rb,rb->b", Z, d[:, None] * Z)
+            - np.einsum("kb,kb->b", b, b)
+            + float(np.sum(np.log1p(s2 * lam)))
+            + 2.0 * float(np.sum(np.log(np.diag(L))))
+        )
+        best = np.minimum(best, val)
+    return best
+
+
+def noise_null_test(
+    r_std: np.ndarray,
+    sigma_w: np.ndarray,
+    sensitivity: WanderSensitivity | Mapping[str, np.ndarray],
+    t: np.ndarray | None,
+    sessions: np.ndarray | None,
+    taus: Sequence[float],
+    J0: np.ndarray,
+    candidates: Sequence[tuple[str, np.ndarray, int]],
+    null: WanderModel,
+    rng: np.random.Generator,
+    draws: int = NOISE_NULL_DRAWS,
+) -> NoiseNullTest:
+    """The module's test. ``r_std`` (R,) the current fit's standardised window residuals,
+    ``J0`` (R, k) their Jacobian along its directions; ``candidates``: (sensor, Je (R, k_e), dk)
+    per candidate effect, Je its extended model's Jacobian; ``null``: the null's noise (the
+    admitted triads at their maximum-likelihood sigma and tau)."""
+    R = len(r_std)
+    C = len(candidates)
+    sens = as_sensitivity(sensitivity)
+    if C == 0:
+        return NoiseNullTest(np.zeros(0), np.zeros(0), np.zeros(0))
+    # draws from the null's noise, in the span orthogonal to the current model (as r_std is)
+    cov = np.eye(R) + wander_covariance(sensitivity, t, null, sessions) / np.outer(sigma_w, sigma_w)
+    Lnull = np.linalg.cholesky(cov)
+    Q0 = _orth(J0)
+    Y = Lnull @ rng.standard_normal((R, draws))
+    Y = np.column_stack([r_std - Q0 @ (Q0.T @ r_std), Y - Q0 @ (Q0.T @ Y)])
+    # Je comes from the extended fit, at its own solution: its columns along the current
+    # model's directions differ from J0 by the linearisation, so the extended model is the
+    # current span plus the dk leading directions of what of Je lies outside it (nested, as
+    # the likelihood ratio needs)
+    extended = [np.hstack([Q0, _leading(Je - Q0 @ (Q0.T @ Je), dk)]) for _, Je, dk in candidates]
+    stat = np.zeros((C, draws + 1))
+    for s in {c[0] for c in candidates}:
+        if s not in sens.sensors:
+            continue
+        one = WanderSensitivity(sens.window, {s: sens.rows[s]}, sens.n_windows)
+        others = WanderModel({k: v for k, v in null.triads.items() if k != s})
+        base = np.eye(R) + wander_covariance(sensitivity, t, others, sessions) / np.outer(
+            sigma_w, sigma_w
+        )
+        L = np.linalg.cholesky(base)
+        Yw = solve_triangular(L, Y, lower=True)
+        Qs = {-1: _orth(solve_triangular(L, J0, lower=True))}  # -1: the current model
+        members = [i for i, c in enumerate(candidates) if c[0] == s]
+        for i in members:  # the extended model's span: the current one plus dk directions
+            Qs[i] = _orth(solve_triangular(L, extended[i], lower=True))
+        best = {key: np.full(draws + 1, np.inf) for key in Qs}
+        for tau in taus:
+            unit_model = WanderModel({s: TriadWander(np.ones(3), np.full(3, tau))})
+            U = wander_covariance(one, t, unit_model, sessions)
+            U = U / np.outer(sigma_w, sigma_w)
+            diag = np.diag(U)
+            if not (diag > 0).any():
+                continue
+            X = solve_triangular(L, U, lower=True)
+            lam, V = np.linalg.eigh(solve_triangular(L, X.T, lower=True))
+            lam = np.clip(lam, 0.0, None)
+            scale2 = 1.0 / float(np.mean(diag[diag > 0]))  # sigma^2 at the windows' own noise
+            grid = np.concatenate([[0.0], scale2 * 10.0 ** (2 * _LOG_SIGMA)])
+            for key, Q in Qs.items():
+                best[key] = np.minimum(best[key], _profile_min(Yw, Q, lam, V, grid))
+        for i in members:
+            stat[i] = best[-1] - best[i]
+    dks = np.array([c[2] for c in candidates], float)
+    nominal = stats.chi2.sf(np.maximum(stat, 0.0), dks[:, None])  # (C, draws + 1)
+    min_p = nominal[:, 1:].min(axis=0)
+    p_family = (1 + np.sum(min_p[None, :] <= nominal[:, :1], axis=1)) / (1 + draws)
+    return NoiseNullTest(stat[:, 0], nominal[:, 0], p_family)
