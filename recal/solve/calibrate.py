@@ -76,7 +76,6 @@ from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, 
 from recal.solve.start import data_prior, references
 from recal.solve.swarm import SwarmConfig
 from recal.solve.wander_fit import (  # noqa: F401 - WANDER_*: re-exported, were defined here
-    WANDER_MAX_RESIDUALS,
     WANDER_MIN_SPAN_S,
     WANDER_TEST,
     _wander_note,

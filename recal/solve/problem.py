@@ -42,9 +42,10 @@ from recal.model.positions import GYRO_STD_COLUMNS, Positions
 from recal.model.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 from recal.model.terms import Term
 from recal.solve.wander import (
+    WanderCovariance,
     WanderModel,
-    wander_covariance,
-    whitener,
+    WanderSensitivity,
+    Whitening,
     window_sessions,
     window_times,
 )
@@ -104,7 +105,8 @@ class Problem:
         slew_excess_rad: an unmodelled error per slew residual added in quadrature to its sigma
             (estimated from the slews' misfit by :func:`recal.solve.slew_fit.slew_excess`), rad.
         wander, wander_cov: the triads' bias wander between windows and the covariance it adds
-            to the window residuals (:meth:`with_wander`); :meth:`residuals` whitens by it.
+            to the window residuals (:meth:`with_wander`; state-space form, linear in the
+            windows); :meth:`residuals` whitens by it.
     """
 
     positions: Positions
@@ -122,11 +124,13 @@ class Problem:
     closed_turns: ClosedTurns | None = None
     turn_candidates: tuple[TurnCandidate, ...] = ()
     slew_excess_rad: float = 0.0
-    #: bias wander between windows (:mod:`recal.solve.wander`) and the (Rw, Rw) covariance it
-    #: adds to the window invariants' residuals (gyro norm, accel norm, dot: the first Rw of
-    #: :meth:`residuals`), set by :meth:`with_wander`; None: windows independent
+    #: bias wander between windows (:mod:`recal.solve.wander`) and the covariance it adds to the
+    #: window invariants' residuals (gyro norm, accel norm, dot: the first Rw of
+    #: :meth:`residuals`) in state-space form (a :class:`recal.solve.wander.WanderCovariance`:
+    #: the model and the residuals' sensitivity, never a dense Rw x Rw matrix), set by
+    #: :meth:`with_wander`; None: windows independent
     wander: WanderModel | None = None
-    wander_cov: np.ndarray | None = None
+    wander_cov: WanderCovariance | None = None
     #: the swarm objective (:meth:`objective`): False (the default) the least squares LM
     #: minimises, chi^2 / (R - 1); True seed 000 eq. (14) per invariant over its noise floor
     #: (``--paper``)
@@ -459,15 +463,17 @@ class Problem:
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         """Whitened residuals (P, R), R = M x number of invariants, for least squares. With a
-        bias wander (:meth:`with_wander`) the window invariants are whitened together by the
-        inverse Cholesky factor of their full covariance (a generalised least squares)."""
+        bias wander (:meth:`with_wander`) the window invariants are whitened together: each is
+        replaced by its standardised Kalman innovation under the wander (the inverse Cholesky
+        factor of their full covariance, windows in time order: a generalised least squares),
+        in time and memory linear in the windows; the other invariants are left as they are."""
         raw = self.raw_residuals(theta)
         parts = [raw[n] / self.sigma[n] for n in self.invariant_names]
         W = self._whitener
         if W is None:
             return np.concatenate(parts, axis=1)
         k = len(self.window_invariants)
-        return np.concatenate([np.concatenate(parts[:k], axis=1) @ W.T, *parts[k:]], axis=1)
+        return np.concatenate([W.apply(np.concatenate(parts[:k], axis=1)), *parts[k:]], axis=1)
 
     @property
     def window_invariants(self) -> tuple[str, ...]:
@@ -479,32 +485,39 @@ class Problem:
         return np.concatenate([self.sigma[n] for n in self.window_invariants])
 
     @cached_property
-    def _whitener(self) -> np.ndarray | None:
+    def _whitener(self) -> Whitening | None:
+        """The window residuals' whitening for their current sigma (shared by copies of this
+        problem with other fields changed: :class:`recal.solve.wander.WanderCovariance`)."""
         if self.wander_cov is None:
             return None
-        return whitener(self.window_sigma(), self.wander_cov)
+        return self.wander_cov.whitening(self.window_sigma())
 
-    def wander_sensitivity(self, theta: np.ndarray) -> dict[str, np.ndarray]:
-        """sensor -> (Rw, M, 3): d (window residual) / d (output of each window's axis) at
-        ``theta``, in the order of :meth:`residuals`' window part (zero off its own window)."""
+    def wander_sensitivity(self, theta: np.ndarray) -> WanderSensitivity:
+        """d (window residual) / d (output of its window's axes) at ``theta``: per residual, in
+        the order of :meth:`residuals`' window part, its window and per triad a 3-vector (input
+        units per output unit; zeros where the residual does not involve the triad)."""
         x = {k: v[0] for k, v in self.physical(np.atleast_2d(theta)).items()}
         gains = self._output_gains(np.asarray(theta, float), x)
+        windows: list[np.ndarray] = []
         blocks: dict[str, list[np.ndarray]] = {s: [] for s in self.sensors}
-        M = self.M
         for n in self.window_invariants:
             rows = self.rows_of(n)
+            windows.append(rows)
             for s in self.sensors:
-                g = np.zeros((len(rows), M, 3))
-                d = None
+                d = np.zeros((len(rows), 3))
                 if n == f"{s}_norm":
                     v = x[s][rows]
                     d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
                 elif n == "dot":
                     d = x["accel" if s == "gyro" else "gyro"][rows]
-                if d is not None:
-                    g[np.arange(len(rows)), rows] = d / gains[s][rows]
-                blocks[s].append(g)
-        return {s: np.concatenate(b, axis=0) for s, b in blocks.items()}
+                blocks[s].append(d / gains[s][rows])
+        if not windows:
+            return WanderSensitivity(
+                np.zeros(0, int), {s: np.zeros((0, 3)) for s in blocks}, self.M
+            )
+        return WanderSensitivity(
+            np.concatenate(windows), {s: np.concatenate(b) for s, b in blocks.items()}, self.M
+        )
 
     def with_wander(self, model: WanderModel | None, theta: np.ndarray) -> Problem:
         """The problem with ``model``'s bias wander between windows (at ``theta``'s gains);
@@ -513,7 +526,7 @@ class Problem:
             return replace(self, wander=None, wander_cov=None)
         t = window_times(self.positions.columns, self.M)
         sessions = window_sessions(self.positions.columns, self.M)
-        cov = wander_covariance(self.wander_sensitivity(theta), t, model, sessions)
+        cov = WanderCovariance(model, self.wander_sensitivity(theta), t, sessions)
         return replace(self, wander=model, wander_cov=cov)
 
     def squared_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:

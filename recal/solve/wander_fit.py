@@ -27,10 +27,6 @@ if TYPE_CHECKING:  # annotations only: recal.solve.calibrate imports this module
 WANDER_MIN_SPAN_S = 3600.0
 
 
-#: ... and up to this many window residuals (the whitening is dense: R^2 memory, R^3 time).
-WANDER_MAX_RESIDUALS = 1500
-
-
 def _with_wander(
     problem: Problem,
     theta: np.ndarray,
@@ -62,14 +58,12 @@ def _with_wander(
     elif opt.wander == "auto":
         sessions = window_sessions(problem.positions.columns, problem.M)
         span = 0.0 if t is None else _longest_session_span(t, sessions)
-        if span < WANDER_MIN_SPAN_S or problem.window_sigma().size > WANDER_MAX_RESIDUALS:
+        if span < WANDER_MIN_SPAN_S:
             out["wander"] = None
             out["wander_test"] = (
                 f"not estimated: the windows span {span / 3600:.2g} h (wander between windows "
                 f"is looked for over {WANDER_MIN_SPAN_S / 3600:g} h or more; over a shorter "
                 "session an excess is model error, recal diagnose)"
-                if span < WANDER_MIN_SPAN_S
-                else f"not estimated: more than {WANDER_MAX_RESIDUALS} window residuals"
             )
             return problem, theta, out, 0
         raw = problem.raw_residuals(theta[None])
