@@ -161,7 +161,7 @@ def diagnose(
         picked.append(best)
         pool.pop(best.effect)
         start = values_by_term(current.problem.layout, current.theta)
-        previous, current = current, _fit(base, opt, chosen + suggested, start=start)
+        previous, current = current, _refit(base, opt, chosen + suggested, start)
         noise = noise_fit(current)
         ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n, noise))
     ranked.sort(key=lambda c: (not c.identifiable, np.nan_to_num(c.delta_bic, nan=np.inf)))
@@ -187,6 +187,26 @@ def diagnose(
     _trust(d, fit0, current, picked)
     _conclude(d, current, n, picked)
     return d
+
+
+def _refit(
+    base: CalibrationResult,
+    opt: CalibrationOptions,
+    effects: list[str],
+    start: dict[str, np.ndarray],
+) -> Fit:
+    """The model with ``effects`` fitted from ``start`` (the model before them) and from the
+    prior; the better. A large missing effect drags the baseline's weakly pinned directions
+    far from the truth, and a fit from there that holds them (they stay below the fitted
+    information) settles above the floor (accel.scale_temperature, 1e-4/degC over a 15 degC
+    swing: chi2 172 from the baseline, 72 from the prior, on 63 degrees of freedom)."""
+    fits = [_fit(base, opt, effects, start=start)]
+    try:
+        fits.append(_fit(base, opt, effects, start=values_by_term(base.layout, base.theta_prior)))
+    except RecalInputError:
+        pass
+    good = [f for f in fits if np.isfinite(f.rss) and not f.degenerate]
+    return min(good, key=lambda f: f.rss) if good else fits[0]
 
 
 def _rescue(

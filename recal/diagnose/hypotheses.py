@@ -47,6 +47,7 @@ from recal.solve.wander import (
     window_sessions,
     window_times,
 )
+from recal.solve.wander_fit import WANDER_MIN_SPAN_S
 
 #: Names of the noise hypotheses, as the JSON gives them.
 WHITE, NOISE = "independent", "noise"
@@ -166,8 +167,12 @@ def window_inputs(fit: Fit) -> WindowInputs | None:
     sigma_w = p.window_sigma()
     r_std = np.concatenate([raw[n][0] for n in windows]) / sigma_w
     span = 0.0 if t is None else float(np.ptp(t))
+    # over a session shorter than calibrate looks for wander in, a wander with tau near the
+    # span is a trend, which no test tells from a drift: there only independent excess is tried
+    # (a 52-minute session's 0.03 deg/h/h drift was called a wander of tau 1 h)
+    taus = correlation_times(t, sessions, span) if span >= WANDER_MIN_SPAN_S else [0.0]
     return WindowInputs(r_std, sigma_w, fit.jac[: len(r_std)], p.wander_sensitivity(fit.theta),
-                        t, sessions, correlation_times(t, sessions, span))  # fmt: skip
+                        t, sessions, taus)  # fmt: skip
 
 
 def noise_fit(fit: Fit) -> NoiseFit:

@@ -27,6 +27,7 @@ eigendecomposition, each draw a few matrix products.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -44,9 +45,16 @@ from recal.solve.wander import (
 
 #: Parametric-bootstrap draws of the null (family-wise p resolution 1 / (draws + 1)).
 NOISE_NULL_DRAWS = 400
-#: The sigma grid: log10 steps around the residuals' scale (a 0.17-decade step costs under 0.2
-#: in 2 ln L at the maximum).
-_LOG_SIGMA = np.linspace(-3.0, 2.5, 34)
+#: The sigma grid: log10 steps of about 0.17 around the windows' own noise (a step that size
+#: costs under 0.2 in 2 ln L at the maximum), from 1e-3 of it to 300 times it or 30 times the
+#: null's sigma, whichever is larger.
+_LOG_STEP = 0.17
+
+
+def _log_sigma(top: float) -> np.ndarray:
+    """log10 (sigma / the windows' noise) of the grid; ``top`` log10 of the null's own."""
+    hi = max(2.5, top + 1.5)
+    return np.linspace(-3.0, hi, int(np.ceil((hi + 3.0) / _LOG_STEP)) + 1)
 
 
 @dataclass(frozen=True)
@@ -156,7 +164,16 @@ def noise_null_test(
             lam, V = np.linalg.eigh(solve_triangular(L, X.T, lower=True))
             lam = np.clip(lam, 0.0, None)
             scale2 = 1.0 / float(np.mean(diag[diag > 0]))  # sigma^2 at the windows' own noise
-            grid = np.concatenate([[0.0], scale2 * 10.0 ** (2 * _LOG_SIGMA)])
+            # up to well past the null's own sigma: a misfit of thousands of times the window
+            # noise (a large missing effect) must be within the null's profile, or every draw
+            # looks like an effect
+            own = null.triads.get(s)
+            top = (
+                0.0
+                if own is None
+                else math.log10(max(float(own.sigma.max()) ** 2 / scale2, 1.0)) / 2
+            )
+            grid = np.concatenate([[0.0], scale2 * 10.0 ** (2 * _log_sigma(top))])
             for key, Q in Qs.items():
                 best[key] = np.minimum(best[key], _profile_min(Yw, Q, lam, V, grid))
         for i in members:
