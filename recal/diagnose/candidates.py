@@ -15,7 +15,11 @@ from scipy import stats
 
 from recal.diagnose.fit import FIT_INFO_MIN, Fit, _fit, heldout_chi2_red
 from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit, window_inputs
-from recal.diagnose.noise_test import NOISE_NULL_DRAWS, noise_null_test
+from recal.diagnose.noise_test import (
+    NOISE_NULL_DRAWS,
+    NOISE_NULL_MAX_RESIDUALS,
+    noise_null_test,
+)
 from recal.diagnose.trust import _trade_off
 from recal.errors import RecalInputError
 from recal.model.plugins import values_by_term
@@ -333,7 +337,22 @@ def against_noise(
         c.hypotheses["test"] = "F, family-wise by parametric bootstrap"
     w = window_inputs(current)
     tested = [c for c in ok if c.jac is not None]
-    if null == NOISE and w is not None and tested:
+    if null == NOISE and w is not None and tested and len(w.r_std) > NOISE_NULL_MAX_RESIDUALS:
+        # the bootstrap is dense; past its size the likelihood ratio of the linear-time noise
+        # fits is taken against chi-square, Bonferroni over the candidates, and says so
+        for c in tested:
+            assert c.noise is not None
+            lr = (noise.chi2 - noise.gain_all) - (c.noise.chi2 - c.noise.gain_all)
+            c.p_value = float(stats.chi2.sf(max(lr, 0.0), c.added_directions))
+            c.p_adjusted = min(1.0, c.p_value * len(tested))
+            c.hypotheses["test"] = {
+                "likelihood_ratio": round(float(lr), 3),
+                "dof": c.added_directions,
+                "null": f"chi-square x {len(tested)} candidates (Bonferroni): the bootstrap "
+                f"runs up to {NOISE_NULL_MAX_RESIDUALS} window residuals, these are "
+                f"{len(w.r_std)}",
+            }
+    elif null == NOISE and w is not None and tested:
         test = noise_null_test(
             w.r_std, w.sigma, w.sensitivity, w.t, w.sessions, w.taus, w.jacobian,
             [(c.effect.split(".", 1)[0], c.jac[: len(w.r_std)], c.added_directions)

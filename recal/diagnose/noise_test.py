@@ -45,6 +45,11 @@ from recal.solve.wander import (
 
 #: Parametric-bootstrap draws of the null (family-wise p resolution 1 / (draws + 1)).
 NOISE_NULL_DRAWS = 400
+#: The bootstrap is dense (an (R, R) eigendecomposition per correlation time): up to this many
+#: window residuals (500 windows with both triads); past it recal.diagnose.candidates takes
+#: the likelihood ratio against chi-square with Bonferroni, and says so in the candidate's
+#: ``hypotheses["test"]``.
+NOISE_NULL_MAX_RESIDUALS = 1500
 #: The sigma grid: log10 steps of about 0.17 around the windows' own noise (a step that size
 #: costs under 0.2 in 2 ln L at the maximum), from 1e-3 of it to 300 times it or 30 times the
 #: null's sigma, whichever is larger.

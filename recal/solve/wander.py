@@ -75,7 +75,8 @@ def tau_floor_s(t: np.ndarray, sessions: np.ndarray | None = None) -> float:
     window, which no window-to-window correlation distinguishes from model error. So the
     estimate tries 0 (independent excess, said to be such) and tau from this floor up."""
     t = np.asarray(t, float)
-    order = np.argsort(t, kind="stable")
+    # in order of (session, time): each session restarts the clock
+    order = np.lexsort((t,) if sessions is None else (t, np.asarray(sessions)))
     gaps = np.diff(t[order])
     if sessions is not None:  # a gap across sessions is not a spacing
         s = np.asarray(sessions)[order]
