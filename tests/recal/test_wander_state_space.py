@@ -255,7 +255,8 @@ def _session(seed: int, windows: int, k_gyro: float, k_accel: float, gap_s: floa
 def test_the_estimate_is_the_dense_one(seed, windows, k_gyro, k_accel, gap_s, split) -> None:
     """On 30-60 windows of a calibration's residuals the state-space estimate finds what the
     dense one finds: the same correlation times and decisions, sigma to the profile's
-    resolution, the likelihood gains to 1e-8."""
+    resolution, the likelihood gains to 1e-8 (the correlation time on the grid alone, as the
+    dense estimate took it)."""
     pos = _session(seed, windows, k_gyro, k_accel, gap_s)
     res = calibrate(pos, CalibrationOptions(latitude_deg=45.0, method="lm"))
     prob, theta = res.problem, res.theta
@@ -268,7 +269,9 @@ def test_the_estimate_is_the_dense_one(seed, windows, k_gyro, k_accel, gap_s, sp
     sessions = (np.arange(prob.M) >= prob.M // 2).astype(float) if split else None
     taus = correlation_times(t, sessions, float(np.ptp(t)))
     sens = prob.wander_sensitivity(theta)
-    _, fits = estimate_wander(r, sigma, sens, t, taus=taus, jacobian=J, sessions=sessions)
+    _, fits = estimate_wander(
+        r, sigma, sens, t, taus=taus, jacobian=J, sessions=sessions, refine_tau=False
+    )
     dense = _dense_estimate(r, sigma, sens, t, taus, J, sessions)
     assert [f.sensor for f in fits] == [d["sensor"] for d in dense]
     for f, d in zip(fits, dense, strict=True):
@@ -277,6 +280,43 @@ def test_the_estimate_is_the_dense_one(seed, windows, k_gyro, k_accel, gap_s, sp
         assert f.gain == pytest.approx(d["gain"], rel=1e-8, abs=1e-7)
         for key in ("sigma", "sigma_ml", "sigma_upper", "sigma_carried"):
             assert getattr(f, key) == pytest.approx(d[key], rel=1e-4, abs=1e-12), key
+
+
+def test_the_carried_tau_is_the_band_edge_between_grid_points() -> None:
+    """refine_tau: the carried tau is the longest whose profile (sigma re-fitted, dense) stays
+    within TAU_CONSERVATIVE of the best, found between the picked grid point and the next one
+    (one triad: one round)."""
+    from recal.solve.wander import _LOG_TAU_TOL, _directions
+
+    pos = _session(12, 60, 1.0, 0.0, 3600.0)
+    res = calibrate(pos, CalibrationOptions(latitude_deg=45.0, method="lm"))
+    prob, theta = res.problem, res.theta
+    raw = prob.raw_residuals(theta[None])
+    sigma = prob.window_sigma()
+    r = np.concatenate([raw[n][0] for n in prob.window_invariants]) / sigma
+    T = prob.layout.typical(theta)[:, None] * res.observability.basis
+    J = jacobian(prob, theta, T.T)[: len(r)]
+    t = window_times(prob.positions.columns, prob.M)
+    taus = correlation_times(t, None, float(np.ptp(t)))
+    full = prob.wander_sensitivity(theta)
+    sens = WanderSensitivity(full.window, {"gyro": full.rows["gyro"]}, full.n_windows)
+    (grid,) = estimate_wander(r, sigma, sens, t, taus=taus, jacobian=J, refine_tau=False)[1]
+    (fit,) = estimate_wander(r, sigma, sens, t, taus=taus, jacobian=J)[1]
+    Jd = _directions(J)
+
+    def profile(tau: float) -> float:  # dense: sigma by golden section
+        def f(sg: float) -> float:
+            model = WanderModel({"gyro": TriadWander(np.full(3, sg), np.full(3, tau))})
+            return _dense_nll(r, Jd, _dense_C(sens, t, None, sigma, model))
+
+        return f(math.exp(_golden_min(lambda x: f(math.exp(x)), math.log(1e-3), math.log(1e2))))
+
+    best = profile(grid.tau_ml_s)
+    nxt = min(tau for tau in taus if tau > grid.tau_s)
+    assert grid.tau_s < fit.tau_s < nxt  # moved off the grid, not past the next point
+    assert 2.0 * (profile(fit.tau_s) - best) <= TAU_CONSERVATIVE + 1e-6
+    assert 2.0 * (profile(fit.tau_s * math.exp(2 * _LOG_TAU_TOL)) - best) > TAU_CONSERVATIVE
+    assert fit.gain == pytest.approx(grid.gain, rel=1e-10) and fit.significant
 
 
 def test_wander_is_estimated_past_the_old_size_limit() -> None:
