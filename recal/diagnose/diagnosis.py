@@ -52,6 +52,9 @@ class Diagnosis:
     #: "unexplained"; and the figures of the hypotheses compared (IC, lower is better)
     explanation: str = ""
     hypotheses: dict[str, Any] = field(default_factory=dict)
+    #: the look-alike fitted in place of an orientation-driven gyro effect
+    #: (recal.diagnose.lookalikes): its chi2, the F-test's p and where it puts the core
+    lookalike: dict[str, Any] | None = None
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
@@ -62,6 +65,7 @@ class Diagnosis:
             "trustworthy": self.trustworthy,
             "warning": self.warning,
             "core_shift": self.core_shift,
+            "lookalike": self.lookalike,
             "worst_positions": self.worst_positions,
             "worst_slews": self.worst_slews,
             "indexing": INDEXING,

@@ -85,10 +85,12 @@ from recal.diagnose.fit import (  # noqa: F401 - re-exported
     Fit,
     _fit,
     _invariant_rows,
+    best_fit,
     heldout_chi2_red,
     worst_windows,
 )
 from recal.diagnose.hypotheses import noise_fit
+from recal.diagnose.lookalikes import lookalike_check
 from recal.diagnose.trust import (  # noqa: F401 - re-exported
     CORE_SHIFT_SIGMA,
     CORRELATION_WARN,
@@ -161,7 +163,7 @@ def diagnose(
         picked.append(best)
         pool.pop(best.effect)
         start = values_by_term(current.problem.layout, current.theta)
-        previous, current = current, _refit(base, opt, chosen + suggested, start)
+        previous, current = current, best_fit(base, opt, chosen + suggested, start)
         noise = noise_fit(current)
         ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n, noise))
     ranked.sort(key=lambda c: (not c.identifiable, np.nan_to_num(c.delta_bic, nan=np.inf)))
@@ -185,28 +187,9 @@ def diagnose(
         final_noise=noise,
     )
     _trust(d, fit0, current, picked)
+    lookalike_check(d, base, opt, chosen, current, picked)
     _conclude(d, current, n, picked)
     return d
-
-
-def _refit(
-    base: CalibrationResult,
-    opt: CalibrationOptions,
-    effects: list[str],
-    start: dict[str, np.ndarray],
-) -> Fit:
-    """The model with ``effects`` fitted from ``start`` (the model before them) and from the
-    prior; the better. A large missing effect drags the baseline's weakly pinned directions
-    far from the truth, and a fit from there that holds them (they stay below the fitted
-    information) settles above the floor (accel.scale_temperature, 1e-4/degC over a 15 degC
-    swing: chi2 172 from the baseline, 72 from the prior, on 63 degrees of freedom)."""
-    fits = [_fit(base, opt, effects, start=start)]
-    try:
-        fits.append(_fit(base, opt, effects, start=values_by_term(base.layout, base.theta_prior)))
-    except RecalInputError:
-        pass
-    good = [f for f in fits if np.isfinite(f.rss) and not f.degenerate]
-    return min(good, key=lambda f: f.rss) if good else fits[0]
 
 
 def _rescue(

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from recal.errors import RecalInputError
 from recal.model.error_model import ParameterLayout
 from recal.model.plugins import bind_context, values_by_term
 from recal.solve.calibrate import CalibrationOptions, CalibrationResult, build_models
@@ -111,6 +112,26 @@ def _fit(
     return Fit(tuple(effects), problem, theta, report.rank, float(r @ r), report.verdict,
                sd, cov, degenerate=degenerate, jac=jacobian(problem, theta, T.T),
                transform=T)  # fmt: skip
+
+
+def best_fit(
+    base: CalibrationResult,
+    opt: CalibrationOptions,
+    effects: list[str],
+    start: dict[str, np.ndarray],
+) -> Fit:
+    """The model with ``effects`` fitted from ``start`` (the model before them) and from the
+    prior; the better. A large missing effect drags the baseline's weakly pinned directions
+    far from the truth, and a fit from there that holds them (they stay below the fitted
+    information) settles above the floor (accel.scale_temperature, 1e-4/degC over a 15 degC
+    swing: chi2 172 from the baseline, 72 from the prior, on 63 degrees of freedom)."""
+    fits = [_fit(base, opt, effects, start=start)]
+    try:
+        fits.append(_fit(base, opt, effects, start=values_by_term(base.layout, base.theta_prior)))
+    except RecalInputError:
+        pass
+    good = [f for f in fits if np.isfinite(f.rss) and not f.degenerate]
+    return min(good, key=lambda f: f.rss) if good else fits[0]
 
 
 def _structural_rank(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> int:

@@ -54,6 +54,11 @@ def test_the_json_carries_each_hypothesis_and_an_orientation_effect_beats_the_ex
     assert gyro["kind"] == "excess" and gyro["admitted"] and gyro["tau_s"] == 0.0
     assert h["test"]["draws"] > 0 and h["test"]["likelihood_ratio"] > 50
     assert doc["explanation"] == "effect"
+    # the heading-dependent look-alike (recal.diagnose.lookalikes) cannot fit a g-sensitivity
+    # with cross-axis terms, so it does not make the diagnosis NOT CONFIRMED
+    look = doc["lookalike"]
+    assert look["replaces"] == ["gyro.g_sensitivity"] and look["p_suggested_better"] < 1e-6
+    assert "heading-dependent gyro bias" not in d.verdict
     assert "excess" in d.verdict and "alone explains it worse" in d.verdict
     assert "wander" not in d.verdict.split("NOT CONFIRMED")[0]  # an excess is never wander
 
