@@ -110,11 +110,15 @@ WARMUP = str(Path(__file__).resolve().parents[1] / "docs" / "examples" / "warmup
 
 @pytest.mark.slow
 def test_ferraris_misfit_is_named_and_adding_it_fits(ferraris_positions: str, capsys) -> None:
-    """chi2_red above 3: diagnose points at a drift with time, the shipped warm-up plugin and the
-    gyro's g-sensitivity it then suggests bring calibrate's chi2_red to <= 3. The session's
-    three 360-degree turns are declared closed, as the Ferraris protocol makes them (a MEMS gyro
-    cannot check them by Earth rate; without the declaration the face flips alone carry the
-    gyro, g-sensitivity is not suggested and the warm-up alone leaves chi2_red 3.3)."""
+    """chi2_red above 3: diagnose points at a drift with time, names the accelerometer's warm-up
+    drift, and calibrate with it halves chi2_red. The session's three 360-degree turns are
+    declared closed, as the Ferraris protocol makes them (a MEMS gyro cannot check them by
+    Earth rate).
+
+    The gyro's g-sensitivity was suggested next until issue 35: it explains 30 % of the gyro's
+    misfit, which is as well an excess independent on each window (model error of a hand-turned
+    MEMS unit), and against that null its 9 parameters do not pay (delta IC +2.6): it is no
+    longer suggested, and calibrate with the drift alone leaves chi2_red 3.05."""
     closed = ["--turn-closure", "0.1"]
     doc = _run_json(capsys, ["diagnose", ferraris_positions, *closed])
     assert doc["model_fails"] and "write it as a --plugin" in doc["verdict"]
@@ -123,10 +127,13 @@ def test_ferraris_misfit_is_named_and_adding_it_fits(ferraris_positions: str, ca
     doc = _run_json(capsys, ["diagnose", ferraris_positions, "--plugin", WARMUP, *closed])
     suggested = doc["suggested_effects"]
     assert suggested[:1] == ["accel.bias_drift"], suggested
+    g = next(c for c in doc["candidates"] if c["effect"] == "gyro.g_sensitivity")
+    assert not g["significant"] and g["hypotheses"]["null"] == "noise" and g["delta_bic"] > 0
     effects = ",".join(f"+{e}" for e in suggested)
     fit = _run_json(capsys, ["calibrate", ferraris_positions, "--plugin", WARMUP,
                              "--effects", effects, *closed])  # fmt: skip
-    assert fit["chi2_red"] <= 3.0 and fit["converged"] is True
+    base = _run_json(capsys, ["calibrate", ferraris_positions, *closed])
+    assert fit["chi2_red"] <= 0.65 * base["chi2_red"] and fit["converged"] is True
 
 
 @pytest.mark.slow

@@ -355,7 +355,7 @@ def against_noise(
     elif null == NOISE and w is not None and tested:
         test = noise_null_test(
             w.r_std, w.sigma, w.sensitivity, w.t, w.sessions, w.taus, w.jacobian,
-            [(c.effect.split(".", 1)[0], c.jac[: len(w.r_std)], c.added_directions)
+            [(c.effect.split(".", 1)[0], c.jac, c.added_directions, w.r_std - c.signature)
              for c in tested],
             noise.model(), rng,
         )  # fmt: skip

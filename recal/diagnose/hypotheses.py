@@ -40,6 +40,8 @@ from recal.solve.wander import (
     WANDER_SIGNIFICANCE,
     TriadWander,
     WanderModel,
+    WanderSensitivity,
+    Whitening,
     correlation_times,
     estimate_wander,
     tau_floor_s,
@@ -153,6 +155,7 @@ class WindowInputs:
     t: np.ndarray | None
     sessions: np.ndarray | None
     taus: list[float]
+    tau_floor_s: float = 0.0
 
 
 def window_inputs(fit: Fit) -> WindowInputs | None:
@@ -171,8 +174,33 @@ def window_inputs(fit: Fit) -> WindowInputs | None:
     # span is a trend, which no test tells from a drift: there only independent excess is tried
     # (a 52-minute session's 0.03 deg/h/h drift was called a wander of tau 1 h)
     taus = correlation_times(t, sessions, span) if span >= WANDER_MIN_SPAN_S else [0.0]
-    return WindowInputs(r_std, sigma_w, fit.jac[: len(r_std)], p.wander_sensitivity(fit.theta),
-                        t, sessions, taus)  # fmt: skip
+    sens = p.wander_sensitivity(fit.theta)
+    floor = 0.0 if t is None else tau_floor_s(t, sessions)
+    extra = fit.residual()[len(r_std) :]
+    if not extra.size:
+        return WindowInputs(r_std, sigma_w, fit.jac, sens, t, sessions, taus, floor)
+    # The other residuals (slews, known rotations, closed turns) pin coefficients too: without
+    # them the restricted likelihood takes a gyro the slews pin for free and finds no misfit to
+    # explain (the Xsens recording: a gyro norm 8.9 times its floor, an excess gain of 0). They
+    # join as windows of their own, each its own session (independent, no wander: zero
+    # sensitivity), so the same linear-time likelihood serves.
+    X, M = extra.size, sens.n_windows
+    sens = WanderSensitivity(
+        np.concatenate([sens.window, M + np.arange(X)]),
+        {s: np.vstack([g, np.zeros((X, 3))]) for s, g in sens.rows.items()},
+        M + X,
+    )
+    own = np.zeros(M) if sessions is None else np.asarray(sessions, float)
+    return WindowInputs(
+        np.concatenate([r_std, extra]),
+        np.concatenate([sigma_w, np.ones(X)]),
+        fit.jac,
+        sens,
+        None if t is None else np.concatenate([t, np.zeros(X)]),
+        None if t is None else np.concatenate([own, own.max(initial=0.0) + 1.0 + np.arange(X)]),
+        taus,
+        floor,
+    )
 
 
 def noise_fit(fit: Fit) -> NoiseFit:
@@ -201,13 +229,24 @@ def noise_fit(fit: Fit) -> NoiseFit:
         for f in fits
     )
 
+    U, sv, _ = np.linalg.svd(J, full_matrices=False)
+    Q = U[:, sv > 1e-10 * sv.max()] if sv.size and sv.max() > 0 else U[:, :0]
+
     def gain_of(ts: tuple[TriadNoise, ...]) -> float:
+        """2 ln of the *profile* likelihood ratio of the noise ``ts`` over none: the restricted
+        gain plus ln det(Q' C^-1 Q) (Q the fit's directions, orthonormal). The restricted
+        likelihood compares noise models of one fit; across fits with different coefficients
+        its ln det(Q' C^-1 Q) term rewards a model for every direction it adds where the noise
+        is large (the Xsens recording's gyro excess: 9 such directions, a ratio of 43 on the
+        null's own draws), so the figures compared across models are profile ones."""
         ts = tuple(x for x in ts if x.sigma > 0)
         if not ts:
             return 0.0
         model = WanderModel({x.sensor: TriadWander(np.full(3, x.sigma), np.full(3, x.tau_s))
                              for x in ts})  # fmt: skip
-        return float(wander_gain(r_std, sigma_w, sens, t, model, jacobian=J, sessions=sessions))
+        restricted = wander_gain(r_std, sigma_w, sens, t, model, jacobian=J, sessions=sessions)
+        WQ = Whitening(sigma_w, sens, t, model, sessions).apply(Q.T)  # (k, R): C^-1/2 Q
+        return float(restricted + np.linalg.slogdet(WQ @ WQ.T)[1])
 
     admitted = tuple(x for x in triads if x.admitted)
     return NoiseFit(
@@ -215,7 +254,7 @@ def noise_fit(fit: Fit) -> NoiseFit:
         triads,
         gain=gain_of(admitted),
         gain_all=gain_of(triads),
-        tau_floor_s=0.0 if t is None else tau_floor_s(t, sessions),
+        tau_floor_s=w.tau_floor_s,
     )
 
 
