@@ -3,7 +3,8 @@
 Run: python benchmarks/bench_wander_scale.py [--sizes 150,600,2000,5000] [--seeds 40]
      [--first-seed 7000] [--jobs 2] [--nafsa-sizes 150] [--repeat 1]
 
-About 25 minutes on 2 cores with the defaults (nafsa's timing adds a minute per 150 windows).
+About 20 minutes on 2 cores with the defaults; ``--nafsa-sizes`` adds about a minute at 150
+windows and six at 600 (MCS-NAFSA's cost grows with the windows: docs/noise.md).
 
 Sessions: seed 000's FOG and accelerometer (seed truth, default window noise at 100 Hz), one
 window of 600 s every 12 minutes (a daemon's ~120 windows a day) in random orientations at 45 deg,
