@@ -322,8 +322,8 @@ def against_noise(
         assert c.noise is not None
         price = c.added_directions * np.log(n)
         effect, both = c.noise.ic(False) + price, c.noise.ic(True) + price
-        with_noise = bool(c.noise.admitted) and both < effect
-        c.delta_bic = min(effect, both) - null_ic
+        with_noise = c.noise.best_with_noise
+        c.delta_bic = (both if with_noise else effect) - null_ic
         c.hypotheses = {
             "nothing": round(float(noise.ic(False)), 3),
             "noise": round(float(noise.ic(True)), 3) if noise.admitted else None,

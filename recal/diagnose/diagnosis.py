@@ -198,8 +198,8 @@ def _rejected(c: Candidate, noise0: NoiseFit) -> str:
     h = c.hypotheses
     if not h:
         return ""
-    best = min(v for k, v in h.items() if k in ("effect", "effect+noise") and v is not None)
-    if h.get("noise") is not None:
+    best = h["effect+noise"] if h.get("best") == "effect+noise" else h["effect"]
+    if h.get("noise") is not None and h.get("null") == "noise":
         kind = " and ".join(sorted(noise0.kinds)) or "noise"
         what = "bias wander" if kind == "wander" else f"{kind} ({describe(noise0)})"
         return (
