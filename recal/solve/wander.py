@@ -434,18 +434,19 @@ class Whitening:
 
         chain, n = self.chain, self.n
         P, M = z.shape[0], chain.M
-        zc = np.zeros((P, M, chain.q))
-        zc[:, chain.pos, chain.slot] = z
-        rhs = np.einsum("mnq,pmq->pmn", self.gains, zc)
-        x, info = dtbtrs(self._band, rhs.reshape(P, M * n).T, uplo="L", diag="U")
+        # window-major (M, ., P): every step below is a batched small matmul over the windows
+        zc = np.zeros((M, chain.q, P))
+        zc[chain.pos, chain.slot] = z.T
+        rhs = np.matmul(self.gains, zc)  # K_m z_m, (M, n, P)
+        x, info = dtbtrs(self._band, rhs.reshape(M * n, P), uplo="L", diag="U")
         if info != 0:  # a unit triangular band has no singular pivot
             raise RuntimeError(f"wander whitening: tbtrs info {info}")
-        x = x.T.reshape(P, M, n)
-        pred = np.zeros_like(x)
-        pred[:, 1:] = x[:, :-1] * self.phi[None, 1:]
-        nu = zc - np.einsum("mqn,pmn->pmq", self.H, pred)
-        w = np.einsum("mqr,pmr->pmq", self.linv, nu)
-        return w[:, chain.pos, chain.slot]
+        x = x.reshape(M, n, P)
+        pred = np.empty_like(x)  # Phi_m x_{m-1}: the state predicted at window m
+        pred[0] = 0.0
+        pred[1:] = x[:-1] * self.phi[1:, :, None]
+        w = np.matmul(self.linv, zc - np.matmul(self.H, pred))
+        return w[chain.pos, chain.slot].T
 
 
 class WanderCovariance:
