@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from recal.diagnose.fit import FIT_INFO_MIN, Fit, _fit, heldout_chi2_red
-from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit, window_inputs
+from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit
 from recal.diagnose.noise_test import (
     NOISE_NULL_DRAWS,
     NOISE_NULL_MAX_RESIDUALS,
@@ -304,14 +304,14 @@ def _family_pvalues(
 
 
 def against_noise(
-    current: Fit, noise: NoiseFit, scored: list[Candidate], n: int, rng: np.random.Generator
+    noise: NoiseFit, scored: list[Candidate], n: int, rng: np.random.Generator
 ) -> None:
     """Each candidate judged against the best explanation without it (recal.diagnose.hypotheses):
     the current model with independent windows, or with the noise (wander, excess) its
     residuals hold. ``delta_bic`` becomes the candidate's best figure (with or without noise)
     minus that best, plus its directions' price (with no noise admitted anywhere: the plain
     delta BIC). Where the best null holds noise, the F-test's premise (independent windows)
-    fails, so the test is the restricted likelihood ratio of effect plus noise over noise,
+    fails, so the test is the profile likelihood ratio of effect plus noise over noise,
     the noise re-fitted on both sides, family-wise by a parametric bootstrap of that null
     (recal.diagnose.noise_test); otherwise the F-test's family-wise p stands.
     ``significant``: that p below ALPHA and ``delta_bic`` below 0."""
@@ -335,7 +335,7 @@ def against_noise(
             "noise_with_effect": c.noise.to_json_dict(),
         }
         c.hypotheses["test"] = "F, family-wise by parametric bootstrap"
-    w = window_inputs(current)
+    w = noise.inputs  # the current fit's, as its noise was estimated from them
     tested = [c for c in ok if c.jac is not None]
     if null == NOISE and w is not None and tested and len(w.r_std) > NOISE_NULL_MAX_RESIDUALS:
         # the bootstrap is dense; past its size the likelihood ratio of the linear-time noise

@@ -153,7 +153,7 @@ def diagnose(
             _score(current, base, opt, chosen + suggested, t, n, len(pool)) for t in pool.values()
         ]
         _family_pvalues(current, scored, n, np.random.default_rng(opt.seed + round_))
-        against_noise(current, noise, scored, n, np.random.default_rng(opt.seed + 7 + round_))
+        against_noise(noise, scored, n, np.random.default_rng(opt.seed + 7 + round_))
         if round_ == 0:
             ranked = scored
         best = min((c for c in scored if c.significant), key=lambda c: c.delta_bic, default=None)

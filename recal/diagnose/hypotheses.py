@@ -13,12 +13,13 @@ among 0 and the times the windows' spacing can show (:func:`recal.solve.wander.t
   orientation, a missing term), or a wander faster than the spacing, and diagnose says so.
 
 Comparing models with different coefficients needs a likelihood that does not depend on how
-their coefficients are scaled: -2 ln L_R + ln det(J'J), which for independent windows is the
-chi^2 of the fit. So each hypothesis gets one figure on one scale (:attr:`NoiseFit.ic`)::
+their coefficients are scaled: the profile likelihood (coefficients re-fitted by generalised
+least squares), which for independent windows is the chi^2 of the fit. So each hypothesis gets one figure on one scale (:attr:`NoiseFit.ic`)::
 
     IC = chi^2 - gain + 11.34 x (triads with wander or excess) + (effect directions) x ln(n)
 
-gain being 2 ln of the restricted likelihood ratio of the noise over none (0 without). The
+gain being 2 ln of the profile likelihood ratio of the noise over none (0 without; whether a
+fit has noise at all is decided in that fit by the restricted one, as calibrate decides it). The
 noise pays what calibrate's wander test makes it earn (:data:`WANDER_SIGNIFICANCE`), an effect
 its BIC price. The four hypotheses of a candidate (nothing, noise, effect, effect plus noise)
 are the baseline's two figures and the candidate's two: the candidate explains the misfit when
@@ -36,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from recal.diagnose.fit import Fit
+from recal.diagnose.noise_test import orthonormal_span
 from recal.solve.wander import (
     WANDER_SIGNIFICANCE,
     TriadWander,
@@ -93,7 +95,8 @@ class NoiseFit:
     #: likelihood-ratio test of an effect against a noise null, where the noise is re-fitted)
     gain_all: float = 0.0
     tau_floor_s: float = 0.0
-    notes: tuple[str, ...] = field(default_factory=tuple)
+    #: what the noise was estimated from (the test against a noise null reuses it)
+    inputs: WindowInputs | None = field(default=None, repr=False, compare=False)
 
     @property
     def admitted(self) -> tuple[TriadNoise, ...]:
@@ -123,13 +126,7 @@ class NoiseFit:
 
     def model(self) -> WanderModel:
         """The admitted noise as a wander model (tau 0 where it is excess)."""
-        return WanderModel(
-            {
-                t.sensor: TriadWander(np.full(3, t.sigma), np.full(3, t.tau_s))
-                for t in self.admitted
-            },
-            "diagnose: maximum likelihood",
-        )
+        return _as_model(self.admitted)
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
@@ -138,6 +135,14 @@ class NoiseFit:
             "triads": [t.to_json_dict() for t in self.triads],
             "tau_floor_s": self.tau_floor_s,
         }
+
+
+def _as_model(triads: tuple[TriadNoise, ...]) -> WanderModel:
+    """Triads' noise (isotropic sigma, one tau) as a wander model."""
+    return WanderModel(
+        {t.sensor: TriadWander(np.full(3, t.sigma), np.full(3, t.tau_s)) for t in triads},
+        "diagnose: maximum likelihood",
+    )
 
 
 def _num(v: float) -> float | None:
@@ -232,8 +237,7 @@ def noise_fit(fit: Fit) -> NoiseFit:
         for f in fits
     )
 
-    U, sv, _ = np.linalg.svd(J, full_matrices=False)
-    Q = U[:, sv > 1e-10 * sv.max()] if sv.size and sv.max() > 0 else U[:, :0]
+    Q = orthonormal_span(J)
 
     def gain_of(ts: tuple[TriadNoise, ...]) -> float:
         """2 ln of the *profile* likelihood ratio of the noise ``ts`` over none: the restricted
@@ -245,8 +249,7 @@ def noise_fit(fit: Fit) -> NoiseFit:
         ts = tuple(x for x in ts if x.sigma > 0)
         if not ts:
             return 0.0
-        model = WanderModel({x.sensor: TriadWander(np.full(3, x.sigma), np.full(3, x.tau_s))
-                             for x in ts})  # fmt: skip
+        model = _as_model(ts)
         restricted = wander_gain(r_std, sigma_w, sens, t, model, jacobian=J, sessions=sessions)
         WQ = Whitening(sigma_w, sens, t, model, sessions).apply(Q.T)  # (k, R): C^-1/2 Q
         return float(restricted + np.linalg.slogdet(WQ @ WQ.T)[1])
@@ -258,6 +261,7 @@ def noise_fit(fit: Fit) -> NoiseFit:
         gain=gain_of(admitted),
         gain_all=gain_of(triads),
         tau_floor_s=w.tau_floor_s,
+        inputs=w,
     )
 
 

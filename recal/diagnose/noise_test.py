@@ -77,7 +77,8 @@ class NoiseNullTest:
     p_family: np.ndarray
 
 
-def _orth(J: np.ndarray) -> np.ndarray:
+def orthonormal_span(J: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of J's column space (null directions dropped)."""
     U, sv, _ = np.linalg.svd(J, full_matrices=False)
     return U[:, sv > 1e-10 * sv.max()] if sv.size and sv.max() > 0 else U[:, :0]
 
@@ -155,7 +156,7 @@ def noise_null_test(
         for key in (-1, *members):
             r, J = data[key]
             Ys[key] = np.column_stack([solve_triangular(L, r, lower=True), Dw])
-            Qs[key] = _orth(solve_triangular(L, J, lower=True))
+            Qs[key] = orthonormal_span(solve_triangular(L, J, lower=True))
         best = {key: np.full(draws + 1, np.inf) for key in Qs}
         for tau in taus:
             unit_model = WanderModel({s: TriadWander(np.ones(3), np.full(3, tau))})
