@@ -1,7 +1,8 @@
 """Bytes to frames: IMU input formats (one registry, :mod:`drivers.registry`), streaming and
 bulk decoders, transports.
 
-Uses only the standard library, numpy and pyserial; knows nothing of calibration. The names
+Uses only the standard library, numpy and pyserial (and pynmeagps for the ship's NMEA 0183
+sentences, :mod:`drivers.nmea`); knows nothing of calibration. The names
 below are imported on first use (PEP 562), so ``import drivers.registry`` (the CLI's
 ``--format`` choices) stays light.
 """
@@ -41,6 +42,9 @@ _EXPORTS = {
     "FrameBatch": "frames",
     "concat_batches": "frames",
     "LineSplitter": "lines",
+    "NavFix": "nmea",
+    "NavTrack": "nmea",
+    "NmeaParser": "nmea",
     "FrameReader": "reader",
     "ReaderHealth": "reader",
     "RecordResult": "record",

@@ -10,7 +10,9 @@ Column names (any order; extra columns are kept and round-trip unchanged):
 ``accel_x, accel_y, accel_z`` (output units, N_a); ``temperature_c``;
 ``temperature_rate_c_per_h``; optional ``*_std`` per-sample standard deviations and ``*_sem``
 standard errors of the window means (correlated noise included), which take precedence over
-std/sqrt(samples) wherever present.
+std/sqrt(samples) wherever present. Where the ship's sensors are known (NMEA 0183, conventions
+section 12) a window also carries :data:`SHIP_COLUMNS`: ``latitude_deg``, ``sog_kn`` and
+``heading_deg``, means over the window; they are extra columns (kept, NaN where unknown).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ GYRO_SEM_COLUMNS = tuple(f"gyro_{a}_sem" for a in AXES)
 ACCEL_SEM_COLUMNS = tuple(f"accel_{a}_sem" for a in AXES)
 TIME_COLUMNS = ("start_s", "end_s", "samples")
 TEMPERATURE_COLUMNS = ("temperature_c", "temperature_rate_c_per_h")
+#: The ship's state over a window (means; NaN where the ship's sensors did not cover it).
+SHIP_COLUMNS = ("latitude_deg", "sog_kn", "heading_deg")
 #: Preferred column order when writing; extra columns follow in their original order.
 CANONICAL_ORDER = (
     TIME_COLUMNS

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from recal.model.positions import SHIP_COLUMNS
 from service.store.records import CalibrationRecord, SlewRecord
 from service.store.rows import POSITION_COLUMNS, CalibrationRow, PositionRow, SlewRow
 
@@ -43,8 +44,10 @@ def finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def columns_of(rows: Sequence[PositionRow]) -> dict[str, np.ndarray]:
-    """The columns present in every row (stored ones, then ``extra`` ones), NULL as NaN."""
+def columns_of(rows: Sequence[PositionRow], ship: bool = False) -> dict[str, np.ndarray]:
+    """The columns present in every row (stored ones, then ``extra`` ones), NULL as NaN, and the
+    ship's columns (``SHIP_COLUMNS``: their own, loaded when ``ship``, else from ``extra``) where
+    any row has a value, NaN where the ship's sensors did not cover a window."""
     if not rows:
         return {}
     cols: dict[str, np.ndarray] = {}
@@ -52,7 +55,12 @@ def columns_of(rows: Sequence[PositionRow]) -> dict[str, np.ndarray]:
         values = [getattr(r, name) for r in rows]
         if all(v is not None for v in values):
             cols[name] = np.array(values, dtype=float)
-    shared = [k for k in rows[0].extra if all(k in r.extra for r in rows)]
+    for name in SHIP_COLUMNS:  # in extra where the database had no such column yet
+        values = [getattr(r, name) if ship else None for r in rows]
+        values = [r.extra.get(name) if v is None else v for r, v in zip(rows, values)]
+        if any(v is not None for v in values):
+            cols[name] = np.array([math.nan if v is None else v for v in values], dtype=float)
+    shared = [k for k in rows[0].extra if k not in cols and all(k in r.extra for r in rows)]
     for name in shared:
         cols[name] = np.array(
             [math.nan if r.extra[name] is None else r.extra[name] for r in rows], dtype=float

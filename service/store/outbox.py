@@ -13,8 +13,9 @@ from datetime import datetime
 from typing import Any
 
 from sqlalchemy import delete, func, insert, select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, undefer
 
+from recal.model.positions import SHIP_COLUMNS
 from service.store.codec import as_utc, record_of, slew_record
 from service.store.rows import (
     POSITION_COLUMNS,
@@ -94,8 +95,11 @@ def _sessions(s: Session, ids: list[int]) -> dict[tuple[str, int], dict[str, Any
 
 def _windows(s: Session, ids: list[int]) -> dict[tuple[str, int], dict[str, Any]]:
     out = {}
-    for r in s.scalars(select(PositionRow).where(PositionRow.id.in_(ids))):
+    ship = [getattr(PositionRow, c) for c in SHIP_COLUMNS]
+    query = select(PositionRow).where(PositionRow.id.in_(ids)).options(*map(undefer, ship))
+    for r in s.scalars(query):
         columns = {c: getattr(r, c) for c in POSITION_COLUMNS} | dict(r.extra or {})
+        columns |= {c: v for c in SHIP_COLUMNS if (v := getattr(r, c)) is not None}
         out["window", r.id] = {"at": as_utc(r.created_at), "session": r.session_id,
                                "columns": columns}  # fmt: skip
     return out

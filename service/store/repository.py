@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sqlalchemy import func, select
+from sqlalchemy import func, insert, inspect, select
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, NoSuchModuleError, SQLAlchemyError
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session, sessionmaker, undefer
 
-from recal.model.positions import Positions
+from recal.model.positions import SHIP_COLUMNS, Positions
 from service.store import outbox, schema
 from service.store.codec import (
     as_utc,
@@ -64,6 +64,7 @@ class Store:
             ) from None
         self.url = parsed.render_as_string(hide_password=True)
         self._outbox_ready = False  # the schema has the outbox (checked at the first write)
+        self._ship_columns: bool | None = None  # positions has them (checked at the first read)
         try:
             self._engine, self._lock = make_engine(parsed, connect_timeout_s)
         except (NoSuchModuleError, ImportError) as exc:
@@ -108,6 +109,7 @@ class Store:
         Everything runs in one transaction; a newer database is refused.
         """
         schema.upgrade(self._engine, self._lock, self.url)
+        self._ship_columns = None
 
     def schema_version(self) -> int | None:
         """The integer schema version recorded (None before :meth:`create_schema`)."""
@@ -154,13 +156,19 @@ class Store:
         """
         table = Positions.from_columns(columns, source=f"positions for session {session_id}")
         known = [c for c in POSITION_COLUMNS if c in table.columns]
-        extra = [c for c in table.columns if c not in POSITION_COLUMNS]
+        # the ship's columns, NULL where unknown; in extra on a database not yet upgraded to
+        # them (revision 0005 moves them into their columns)
+        ship = [c for c in SHIP_COLUMNS if c in table.columns] if self._has_ship_columns() else []
+        extra = [c for c in table.columns if c not in POSITION_COLUMNS and c not in ship]
+        # one row of values per window, only the columns given: an INSERT naming every mapped
+        # column would fail on a database made before a column was added
         rows = [
-            PositionRow(
-                session_id=session_id,
+            {
+                "session_id": session_id,
                 **{c: float(table.columns[c][i]) for c in known},
-                extra={c: finite_or_none(table.columns[c][i]) for c in extra},
-            )
+                **{c: finite_or_none(table.columns[c][i]) for c in ship},
+                "extra": {c: finite_or_none(table.columns[c][i]) for c in extra},
+            }
             for i in range(len(table))
         ]
         with self._tx(write=True) as s:
@@ -168,9 +176,8 @@ class Store:
                 raise UnknownSessionError(f"database {self.url}: unknown session {session_id}")
             if spool_key is not None and (done := keyed(s, spool_key)):
                 return done  # stored before the spool could delete it: nothing twice
-            s.add_all(rows)
-            s.flush()
-            ids = [r.id for r in rows]
+            stmt = insert(PositionRow).returning(PositionRow.id, sort_by_parameter_order=True)
+            ids = [int(i) for i in s.scalars(stmt, rows)] if rows else []
             motion = slew_rows(slews, ids, previous_id, period_s)
             s.add_all(motion)
             s.flush()
@@ -218,11 +225,26 @@ class Store:
             query = query.where(PositionRow.id > since_id)
         if limit is not None:
             query = query.limit(limit)
+        ship = self._has_ship_columns()
+        if ship:
+            query = query.options(*(undefer(getattr(PositionRow, c)) for c in SHIP_COLUMNS))
         with self._tx() as s:
             rows = list(s.scalars(query))
         ids = [r.id for r in rows]
         source = f"store {self.url}" + (f" positions {ids[0]}..{ids[-1]}" if ids else "")
-        return Positions(columns=columns_of(rows), source=source), ids
+        return Positions(columns=columns_of(rows, ship), source=source), ids
+
+    def _has_ship_columns(self) -> bool:
+        """The positions table has the ship's columns (schema version 5; a database opened
+        before :meth:`create_schema` upgraded it may not)."""
+        if self._ship_columns is None:
+            try:
+                with self._lock, self._engine.connect() as conn:
+                    names = {c["name"] for c in inspect(conn).get_columns("positions")}
+            except SQLAlchemyError as exc:
+                raise StoreError(f"database {self.url}: {one_line(exc)}") from exc
+            self._ship_columns = set(SHIP_COLUMNS) <= names
+        return self._ship_columns
 
     def count_positions(self, session_id: int | None = None, since_id: int | None = None) -> int:
         """Stored positions (of one session; with ids after ``since_id``)."""

@@ -12,11 +12,12 @@ from typing import Any
 from sqlalchemy import JSON, BigInteger, DateTime, Double, ForeignKey, LargeBinary, String, Text
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-from recal.model.positions import CANONICAL_ORDER
+from recal.model.positions import CANONICAL_ORDER, SHIP_COLUMNS
 from service.store.records import utc_now
 
-#: Positions columns stored as real columns (docs/reference.md#positions, schema version 1); others,
-#: the optional ``*_sem`` columns included, go to ``extra``.
+#: Positions columns stored as real columns (docs/reference.md#positions, schema version 1); the
+#: ship's columns (SHIP_COLUMNS, schema version 5) are real columns too, read apart (a database
+#: not yet upgraded lacks them); others, the optional ``*_sem`` columns included, go to ``extra``.
 POSITION_COLUMNS: tuple[str, ...] = tuple(c for c in CANONICAL_ORDER if not c.endswith("_sem"))
 
 
@@ -73,6 +74,12 @@ class PositionRow(Base):
     accel_y_std: Mapped[float | None]
     accel_z_std: Mapped[float | None]
     extra: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    # the ship's state over the window ([nav], NMEA 0183; schema version 5): NULL where unknown.
+    # Deferred: loaded only where asked for (undefer), so a database made before revision 0005
+    # still reads until it is upgraded
+    latitude_deg: Mapped[float | None] = mapped_column(deferred=True)
+    sog_kn: Mapped[float | None] = mapped_column(deferred=True)
+    heading_deg: Mapped[float | None] = mapped_column(deferred=True)
 
 
 class CalibrationRow(Base):
@@ -179,5 +186,5 @@ class SyncDayRow(Base):
     last_contact: Mapped[datetime | None]
 
 
-_missing = set(POSITION_COLUMNS) - set(PositionRow.__table__.columns.keys())
+_missing = {*POSITION_COLUMNS, *SHIP_COLUMNS} - set(PositionRow.__table__.columns.keys())
 assert not _missing, f"PositionRow lacks positions-file columns {_missing}"

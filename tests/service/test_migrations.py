@@ -26,6 +26,7 @@ from sqlalchemy import create_engine, inspect, text
 
 from recal.detect.slews import ReducedSlew
 from recal.model.coefficients import CoefficientSet
+from recal.model.positions import SHIP_COLUMNS
 from recal.sim.simulate import simulate_positions
 from service import migrations
 from service.cli.main import main
@@ -191,12 +192,16 @@ def check_upgrade_keeps_everything(url: str) -> None:
     old.close()
     store = Store(url)
     after = dump(url)
-    assert after.pop("schema_version")[:-3] == before.pop("schema_version")
+    assert after.pop("schema_version")[:-4] == before.pop("schema_version")
+    # revision 0005 added the ship's columns at the end of positions: NULL in every old row
+    ship = len(SHIP_COLUMNS)
+    assert all(row[-ship:] == (None,) * ship for row in after["positions"])
+    after["positions"] = [row[:-ship] for row in after["positions"]]
     if "sqlite_sequence" in after:  # the outbox's numbers are new; the versions' kept
         after["sqlite_sequence"] = [r for r in after["sqlite_sequence"] if r[0] != "outbox"]
     assert after == before
     assert snapshot(store) == served
-    assert store.schema_version() == SCHEMA_VERSION == 4  # the release refuses it from now on
+    assert store.schema_version() == SCHEMA_VERSION == 5  # the release refuses it from now on
     assert store.schema_revision() == migrations.head()
     check_history_is_in_the_outbox(store, served)
 
@@ -246,9 +251,38 @@ def test_upgrade_is_idempotent(store_url: str, store: Store, document: dict[str,
     again.create_schema()
     command.upgrade(migrations.alembic_config(url=store_url), "head")
     assert dump(store_url) == before  # one schema_version row per version, data untouched
-    assert [r[0] for r in before["schema_version"]] == [1, 2, 3, 4]
+    assert [r[0] for r in before["schema_version"]] == [1, 2, 3, 4, 5]
     assert again.recorded_schema() == (SCHEMA_VERSION, migrations.head())
     again.close()
+
+
+def test_ship_columns_are_added_and_extra_values_move_into_them(
+    store_url: str, document: dict[str, Any]
+) -> None:
+    """Revision 0005: a database at 0004 whose windows carried the ship's state as extra
+    columns keeps it, in the new columns; windows without it read as before (no such column)."""
+    at_revision(store_url, "0004")
+    engine = create_engine(store_url)
+    with engine.begin() as conn:
+        conn.execute(text("INSERT INTO sessions (id, created_at, source, meta) VALUES "
+                          "(1, '2026-11-30 10:00:00', 'x', '{}')"))  # fmt: skip
+        for pid, extra in ((1, '{"latitude_deg": 57.7, "sog_kn": 0.2, "pressure_hpa": 1013}'),
+                           (2, '{"pressure_hpa": 1001}')):  # fmt: skip
+            conn.execute(text("INSERT INTO positions (id, session_id, created_at, start_s, "
+                              "end_s, samples, gyro_x, gyro_y, gyro_z, extra) VALUES (:id, 1, "
+                              "'2026-11-30 10:00:00', 0, 1, 10, 1, 2, 3, :extra)"),
+                         {"id": pid, "extra": extra})  # fmt: skip
+    engine.dispose()
+    store = Store(store_url)
+    store.create_schema()
+    positions, ids = store.positions()
+    assert ids == [1, 2] and store.recorded_schema() == (5, "0005")
+    np.testing.assert_array_equal(positions.columns["latitude_deg"], [57.7, np.nan])
+    np.testing.assert_array_equal(positions.columns["sog_kn"], [0.2, np.nan])
+    assert "heading_deg" not in positions.columns  # no window has it
+    assert positions.columns["pressure_hpa"].tolist() == [1013, 1001]
+    assert "latitude_deg" not in store.positions(since_id=1)[0].columns
+    store.close()
 
 
 def test_concurrent_starts_migrate_once(store_url: str) -> None:
@@ -268,7 +302,7 @@ def test_concurrent_starts_migrate_once(store_url: str) -> None:
     for t in threads:
         t.join()
     assert errors == []
-    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3, 4]
+    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3, 4, 5]
 
 
 def test_downgrade_and_upgrade_again(store_url: str, store: Store) -> None:
