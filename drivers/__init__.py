@@ -42,6 +42,7 @@ _EXPORTS = {
     "FrameBatch": "frames",
     "concat_batches": "frames",
     "LineSplitter": "lines",
+    "NavReader": "nav_reader",
     "NavFix": "nmea",
     "NavTrack": "nmea",
     "NmeaParser": "nmea",

@@ -14,7 +14,10 @@ Example file::
     rate_hz = 1000
 
     [site]
-    latitude_deg = 57.7
+    latitude_deg = 57.7        # or from the ship's sensors:
+
+    [nav]                      # the ship's GNSS and heading, NMEA 0183; no section: none
+    url = "udp://:10110"
 
     [detector]
     init_still_s = 30
@@ -161,9 +164,19 @@ class DeviceSettings(Section):
         }
 
 
+#: The latitude a still (laboratory) unit is taken at when ``[site] latitude_deg`` is unset, as
+#: before the setting could be unset; a hull-fixed unit never assumes one (Settings._latitude).
+STILL_DEFAULT_LATITUDE_DEG = 45.0
+
+
 class SiteSettings(Section):
-    latitude_deg: float = Field(
-        45.0, ge=-90, le=90, description="where the unit is: gravity and Earth rate follow it"
+    latitude_deg: float | None = Field(
+        None,
+        ge=-90,
+        le=90,
+        description="where the unit is: gravity and Earth rate follow it; unset: from [nav] "
+        "(the windows' latitude); a still unit without [nav] is taken at 45; with motion = "
+        '"hull", [nav] url or this is required',
     )
     height_m: float = Field(0.0, description="height above the WGS-84 ellipsoid (m)")
     imu_attitude_rpy_deg: tuple[float, float, float] = Field(
@@ -271,6 +284,42 @@ class DetectorSettings(Section):
             lever_arm_max_m=self.hull_lever_arm_max_m,
             max_gap_frames=self.max_gap_frames,
         )
+
+
+class NavSettings(Section):
+    """The ship's GNSS and heading over NMEA 0183 (conventions section 12, docs/service.md);
+    without ``url`` (no ``[nav]`` section) none are read."""
+
+    url: str | None = Field(
+        None,
+        description="where the sentences come from: udp://:10110 (the marine default: UDP "
+        "broadcasts on port 10110), tcp://HOST:PORT, or a serial port as [device] url takes; "
+        "unset: no ship's sensors",
+    )
+    baudrate: int = Field(
+        4800, gt=0, description="serial line speed (bit/s; NMEA 0183: 4800, high-speed 38400)"
+    )
+    max_sog_kn: float = Field(
+        1.0,
+        ge=0,
+        description="a window whose mean speed over ground exceeds this is rejected as "
+        "underway (kn); below it the transport rate of its net displacement is added to its "
+        "gyro sigma (docs/service.md, 'The ship's sensors')",
+    )
+
+    @field_validator("url")
+    @classmethod
+    def _openable(cls, url: str | None) -> str | None:
+        if url is None or url.strip() == "":
+            return None
+        from drivers.transport import check_url
+
+        check_url(url.strip(), must_exist=False)  # DriverInputError naming the known schemes
+        return url.strip()
+
+    @property
+    def enabled(self) -> bool:
+        return self.url is not None
 
 
 Trigger = Literal["drift", "information", "count"]
@@ -590,6 +639,9 @@ class Settings(BaseSettings):
     sync: SyncSettings = Field(
         SyncSettings(), description="fleet sync to the shore service (docs/fleet.md)"
     )
+    nav: NavSettings = Field(
+        NavSettings(), description="the ship's GNSS and heading (NMEA 0183; docs/service.md)"
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -597,6 +649,30 @@ class Settings(BaseSettings):
         if isinstance(data, Mapping):
             _check_keys(cls, data, section=None)
         return data
+
+    @model_validator(mode="after")
+    def _latitude(self) -> Settings:
+        """A hull-fixed unit's latitude is never assumed: from [nav], else [site]."""
+        if (
+            self.detector.motion == "hull"
+            and not self.nav.enabled
+            and self.site.latitude_deg is None
+        ):
+            raise ValueError(
+                'with [detector] motion = "hull" the latitude must come from the ship\'s sensors '
+                "or be given: set [nav] url (e.g. udp://:10110) or [site] latitude_deg"
+            )
+        return self
+
+    @property
+    def site_latitude_deg(self) -> float | None:
+        """``[site] latitude_deg``; unset, 45 for a still unit without ``[nav]`` (the default
+        before it could be unset), else None: the ship's sensors give it."""
+        if self.site.latitude_deg is not None:
+            return self.site.latitude_deg
+        if self.detector.motion == "still" and not self.nav.enabled:
+            return STILL_DEFAULT_LATITUDE_DEG
+        return None
 
     @model_validator(mode="after")
     def _state_paths(self) -> Settings:

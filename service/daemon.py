@@ -102,6 +102,8 @@ class Service:
     feeder: Any = None
     #: The fleet sync thread (service.sync.SyncThread; None without a ``[sync]`` section).
     sync: Any = None
+    #: The ship's sensors (service.nav.ShipSensors; None without ``[nav]``).
+    nav: Any = None
     started: float = field(default_factory=time.monotonic)
     last_tick: float = field(default_factory=time.monotonic)
     last_sync: float = field(default_factory=time.monotonic)
@@ -126,6 +128,8 @@ class Service:
         if self.sync is not None and self.sync.started and not self.sync.alive:
             if not self.sync.stopping:
                 dead["sync"] = "the fleet sync thread has stopped"
+        if self.nav is not None and self.nav.started and not self.nav.alive:
+            dead["nav"] = "the reader of the ship's sensors has stopped"
         api = self._api_dead()
         if api is not None:
             dead["api"] = api
@@ -156,6 +160,10 @@ class Service:
             elif not h.connected:
                 out.append(f"reader: device {self.settings.device.url} is not connected"
                            + (f" ({h.last_error})" if h.last_error else ""))  # fmt: skip
+        if self.nav is not None and "nav" not in dead and self.nav.started:
+            problem = self.nav.health().get("problem")
+            if problem:  # disconnected, or open but no fix: windows go without the ship's state
+                out.append(f"nav: {problem}")
         if self.ingest.store_error is not None:
             out.append(f"database: {self.ingest.spooled} window(s) waiting to be stored "
                        f"({self.ingest.store_error})")  # fmt: skip
@@ -200,6 +208,7 @@ class Service:
             },
             "events_unstored": self.events.unstored,
             "sync": self.sync_health(),
+            "nav": None if self.nav is None else self.nav.health(),
         }
         if self.reader is not None:
             h = self.reader.health()
@@ -271,6 +280,8 @@ class Service:
         ``scheduler.stop_wait_s``) or abandon it, and release everything."""
         if self.sync is not None:  # a request in flight is aborted: no wait for the link
             self.sync.stop()
+        if self.nav is not None:
+            self.nav.stop()
         self.publisher.close()  # ends open /events streams
         self.scheduler.stop_starting()  # the flush below may store windows: they start nothing
         if self.reader is not None:
@@ -335,16 +346,25 @@ def build_service(settings: Settings, with_reader: bool = True, runner: Any = No
         d = settings.device
         device = f"{d.url} {d.format} {d.rate_hz:g} Hz"
         keeper = FloorKeeper(store, device, events, window_frames(config, d.rate_hz))
-        rest = rest_reference(settings, _starting_prior(store, settings))
+        prior = _starting_prior(store, settings)
+        rest = rest_reference(settings, prior)
         hull = settings.detector.hull_config() if settings.detector.motion == "hull" else None
+        nav = None
+        if settings.nav.enabled:  # the ship's sensors: started with the reader (run_daemon)
+            from service.nav import ShipSensors
+
+            nav = ShipSensors(settings.nav, reader=with_reader)
         ingest = Ingest(store, session_id, config, scheduler.notify, events, keeper,
                         settings.detector.learn_s, spool, rest=rest, hull=hull,
-                        learn_quiet_s=settings.detector.learn_quiet_s)  # fmt: skip
+                        learn_quiet_s=settings.detector.learn_quiet_s, nav=nav,
+                        rest_at=lambda lat: rest_reference(settings, prior, lat))  # fmt: skip
+        if nav is not None:
+            nav.on_latitude = ingest.nav_latitude
     except BaseException:
         store.close()
         raise
     ingest.replay()  # windows an earlier run made durable go in before any new one
-    service = Service(settings, store, publisher, scheduler, ingest, session_id, events)
+    service = Service(settings, store, publisher, scheduler, ingest, session_id, events, nav=nav)
     if settings.sync.enabled:  # started with the reader (run_daemon); its own thread and link
         from service.sync import SyncThread
 
@@ -511,6 +531,8 @@ def run_daemon(settings: Settings) -> int:
         server.should_exit = True
 
     service.reader.start()
+    if service.nav is not None:
+        service.nav.start()
     if service.sync is not None:
         service.sync.start()
     keeper = Housekeeping(service, stop, watchdog_s=watchdog_interval_s())

@@ -54,6 +54,8 @@ REFINE_MAX_STEP = 2.0
 #: While the first noise floor is learned, a step in device time between two frames longer than
 #: this (s) is a gap or a clock reset: it is not counted as time learned.
 LEARN_MAX_STEP_S = 1.0
+#: The rest reference is rebuilt at the ship's latitude when it has moved by more than this, deg.
+REST_LATITUDE_STEP_DEG = 0.05
 #: Why learning the first noise floor ended, by code (``/health`` detector.learning.ended_by).
 LEARN_ENDS = ("device_time", "quiet", "wall_time", "end_of_input", "stopping")
 
@@ -74,30 +76,38 @@ def detector_config(settings: Settings) -> DetectorConfig:
     )
 
 
-def rest_reference(settings: Settings, prior: Any = None) -> RestReference | None:
+def rest_reference(
+    settings: Settings, prior: Any = None, latitude_deg: float | None = None
+) -> RestReference | None:
     """The rest check's reference (recal.detect.rest) for this unit: from ``prior`` (the accepted
     version, else ``prior_path``), else nominal for a format whose outputs are deg/h and g
     (a KVH); None when the outputs cannot be turned into physics (no rest check then).
 
     The prior gives the conversion (scale factors, biases); the plausible range is never
     narrower than the navigation class's: an accepted version's own 1-sigma would censor the
-    very windows that show the unit has drifted from it.
+    very windows that show the unit has drifted from it. The latitude is ``latitude_deg`` (the
+    ship's sensors), else the site's (:attr:`Settings.site_latitude_deg`); with neither, gravity
+    anywhere between the equator's and the pole's is at rest until the ship's sensors give it.
     """
     from drivers.registry import get_input_format
 
-    lat, height = settings.site.latitude_deg, settings.site.height_m
+    lat = settings.site_latitude_deg if latitude_deg is None else latitude_deg
+    known, height = lat is not None, settings.site.height_m
+    lat = 45.0 if lat is None else lat
     nominal = RestReference.nominal(lat, height)
     if prior is None:
         physical = tuple(get_input_format(settings.device.format).units) == ("deg/h", "g")
-        return nominal if physical else None
-    ref = RestReference.from_coefficients(prior, lat, height)
-    return replace(
-        ref,
-        scale_sigma=max(ref.scale_sigma, nominal.scale_sigma),
-        gyro_bias_sigma_dph=max(ref.gyro_bias_sigma_dph, nominal.gyro_bias_sigma_dph),
-        accel_bias_sigma_g=max(ref.accel_bias_sigma_g, nominal.accel_bias_sigma_g),
-        misalignment_sigma=max(ref.misalignment_sigma, nominal.misalignment_sigma),
-    )
+        ref = nominal if physical else None
+    else:
+        ref = RestReference.from_coefficients(prior, lat, height)
+        ref = replace(
+            ref,
+            scale_sigma=max(ref.scale_sigma, nominal.scale_sigma),
+            gyro_bias_sigma_dph=max(ref.gyro_bias_sigma_dph, nominal.gyro_bias_sigma_dph),
+            accel_bias_sigma_g=max(ref.accel_bias_sigma_g, nominal.accel_bias_sigma_g),
+            misalignment_sigma=max(ref.misalignment_sigma, nominal.misalignment_sigma),
+        )
+    return ref if ref is None or known else ref.at_unknown_latitude()
 
 
 def window_frames(config: DetectorConfig, rate_hz: float) -> int:
@@ -231,8 +241,16 @@ class Ingest:
         hull: Any = None,
         learn_quiet_s: float = 10.0,
         clock: Callable[[], float] = time.monotonic,
+        nav: Any = None,
+        rest_at: Callable[[float], RestReference | None] | None = None,
     ) -> None:
         self._clock = clock  # host time, s (a test's own clock drives the wall-time rules)
+        # the ship's sensors (service.nav.ShipSensors): each window's ship state, the underway
+        # rule; rest_at(latitude) rebuilds the rest reference when they give the latitude
+        self._nav = nav
+        self._rest_at = rest_at
+        self._nav_latitude: float | None = None  # the newest latitude given, not yet applied
+        self._rest_latitude: float | None = None  # the latitude the rest reference is built at
         self._store = store
         self._session = session_id
         self._on_positions = on_positions
@@ -307,6 +325,8 @@ class Ingest:
         with self._lock:
             if len(batch) == 0:
                 return []
+            if self._nav is not None:  # the frames' device and host times: windows to host time
+                self._nav.observe(batch)
             now = self._clock()
             self._last_frame_at = now
             if self._learn_started is None and self.learning:
@@ -498,7 +518,8 @@ class Ingest:
                 "rest_check": rest,
                 "windows_kept": rep.kept,
                 # every reason, counted or not (an operator sees what is looked for)
-                "rejected": {r: 0 for r in ("too_short", *REST_REASONS)} | dict(rep.rejected),
+                "rejected": {r: 0 for r in ("too_short", *REST_REASONS, *self._nav_reasons)}
+                | dict(rep.rejected),
                 "blocks": {
                     "total": rep.blocks,
                     "turning": rep.blocks_turning,
@@ -519,9 +540,15 @@ class Ingest:
             "gyro_threshold": rep.gyro_threshold,
             "threshold_source": getattr(rep, "threshold_source", None),
             "windows_kept": rep.windows_kept,
-            "rejected": dict(rep.rejected),  # the rest check's reasons included
+            # the rest check's reasons included, and the underway rule's with [nav]
+            "rejected": dict.fromkeys(self._nav_reasons, 0) | dict(rep.rejected),
             "learning": self.learning_health(),
         }
+
+    @property
+    def _nav_reasons(self) -> tuple[str, ...]:
+        """The underway rule's reason with ``[nav]``, else none."""
+        return () if self._nav is None else ("underway",)
 
     def learning_health(self) -> dict[str, Any]:
         """The first noise floor's learning as ``/health`` shows it (``detector.learning``):
@@ -595,7 +622,51 @@ class Ingest:
             self._retry_at = 0.0
             return self._drain() if self._spool else []
 
+    def nav_latitude(self, latitude_deg: float) -> None:
+        """The ship's sensors give this latitude (any thread; returns at once): the rest
+        reference is rebuilt at it before the detector next runs, when it has moved by more than
+        :data:`REST_LATITUDE_STEP_DEG` (gravity moves by 0.1 mg a degree, Earth's vertical rate
+        by 0.26 deg/h)."""
+        self._nav_latitude = float(latitude_deg)
+
+    def _apply_nav_latitude(self) -> None:
+        lat = self._nav_latitude
+        if lat is None or self._rest_at is None:
+            return
+        if (
+            self._rest_latitude is not None
+            and abs(lat - self._rest_latitude) <= REST_LATITUDE_STEP_DEG
+        ):
+            return
+        ref = self._rest_at(lat)
+        if ref is None:
+            return
+        first = self._rest_latitude is None
+        self._rest_latitude = lat
+        self._rest = ref
+        if self._hull is not None:
+            self._hull.ref = ref
+        if first:
+            self._events.emit("nav", f"the ship's sensors give latitude {lat:.4f} deg: the rest "
+                              "check uses it from now on", {"latitude_deg": round(lat, 6)})  # fmt: skip
+
+    def _ship_state(self, windows: list[Window]) -> tuple[list[Window], list[Any] | None]:
+        """The windows the underway rule keeps, with the ship over each (None without
+        ``[nav]``); those it rejects are counted in the detector's report."""
+        if self._nav is None or not windows:
+            return windows, None
+        from recal.detect.underway import count_rejections, underway_rule
+
+        ships = self._nav.over(windows)
+        rule = underway_rule(ships, self._nav.max_sog_kn)
+        if not rule.kept.all():
+            count_rejections(self.report, windows, list(rule.reasons))
+            keep = np.flatnonzero(rule.kept)
+            windows, ships = [windows[i] for i in keep], [ships[i] for i in keep]
+        return windows, ships
+
     def _run(self, flush: bool, why: str = "end_of_input") -> list[int]:
+        self._apply_nav_latitude()
         if self._hull is not None:
             return self._run_hull(flush)
         windows = []
@@ -628,7 +699,8 @@ class Ingest:
             windows = self._rest_check(windows)
         if windows and self._keeper is not None:
             self._keeper.refine(windows)
-        return self._queue(windows)
+        windows, ships = self._ship_state(windows)
+        return self._queue(windows, ships)
 
     def _run_hull(self, flush: bool) -> list[int]:
         """The hull detector's turn: frames in, the windows it has decided out (no slews)."""
@@ -642,7 +714,8 @@ class Ingest:
             found += self._hull.feed(b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid)
         if flush:
             found += self._hull.flush()
-        return self._queue([hw.window for hw in found])
+        windows, ships = self._ship_state([hw.window for hw in found])
+        return self._queue(windows, ships)
 
     def _rest_check(self, windows: list[Window]) -> list[Window]:
         """The static detector's windows that are at rest in physics; the others counted by
@@ -682,9 +755,10 @@ class Ingest:
                               + "; ".join(problems), level=logging.WARNING)  # fmt: skip
         self._rest_warned = problems
 
-    def _queue(self, windows: list[Window]) -> list[int]:
-        """Spool a detector call's windows (with the slews between them) and store what the
-        database takes now."""
+    def _queue(self, windows: list[Window], ships: list[Any] | None = None) -> list[int]:
+        """Spool a detector call's windows (with the slews between them and, with ``[nav]``, the
+        ship over each: its columns, and the transport rate in the gyro sigma) and store what
+        the database takes now."""
         if windows:
             slews = []
             if self._tracker is not None:
@@ -693,12 +767,23 @@ class Ingest:
                     if r is not None:
                         slews.append((k - 1, k, r))
             period = None if self._tracker is None else self._tracker.period_s
-            entry = SpoolEntry(self._session, windows_to_columns(windows), slews,
-                               self._last_key, period)  # fmt: skip
+            columns = windows_to_columns(windows)
+            if ships is not None:
+                columns = self._ship_columns(columns, ships)
+            entry = SpoolEntry(self._session, columns, slews, self._last_key, period)
             self._last_key = entry.key
             self._hold(entry)
             self._retry_at = 0.0  # new data: try the database now
         return self._drain() if self._spool and self._clock() >= self._retry_at else []
+
+    def _ship_columns(self, columns: dict[str, Any], ships: list[Any]) -> dict[str, Any]:
+        """The ship's columns, and the transport rate of each window's net displacement added to
+        its gyro sigma in the gyro's output units (the rest reference's scale; none without
+        one: the outputs' units are not known)."""
+        from recal.detect.underway import ship_columns, underway_rule
+
+        scale = 0.0 if self._rest is None else self._rest.gyro_scale
+        return ship_columns(columns, ships, underway_rule(ships, self._nav.max_sog_kn, scale))
 
     def _spool_failed(self, exc: SpoolWriteError) -> None:
         if self.spool_error != str(exc):

@@ -26,6 +26,7 @@ from service.config import Settings
 from service.db import StoreError
 from service.events import Events
 from service.jobs import JobEnd, JobRunner
+from service.nav import NO_LATITUDE, working_latitude
 from service.recalibration import JobOutcome, calibration_job, months_since
 from service.triggers import (
     Evaluation,
@@ -228,6 +229,9 @@ class Scheduler:
             units = self._unit_problems(positions)
             if units:  # calibrating would publish a scale factor of 0.1, "accepted"
                 raise SchedulerRefused("; ".join(units))
+            latitude = working_latitude(s, positions)  # the ship's, else the site's
+            if latitude is None:
+                raise SchedulerRefused(NO_LATITUDE)
             slews = stored_slews(self._store, positions, ids) if s.scheduler.use_slews else None
             # each session restarts the device clock: the wander correlates windows within one
             positions = with_sessions(self._store, positions, ids)
@@ -235,7 +239,7 @@ class Scheduler:
                 sensor=None if s.scheduler.sensor == "both" else s.scheduler.sensor,
                 method=s.scheduler.method,
                 mc_runs=s.scheduler.mc_runs,
-                latitude_deg=s.site.latitude_deg,
+                latitude_deg=latitude,
                 height_m=s.site.height_m,
                 prior=self._prior(previous),
                 fleet_prior=self._fleet_prior(),

@@ -29,6 +29,7 @@ from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from service.config import Settings
+from service.nav import NO_LATITUDE, working_latitude
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,10 @@ def evaluate(
     if not ids:
         return out
     coefficients, covariance = accepted_coefficients(current)
-    lat, height = settings.site.latitude_deg, settings.site.height_m
+    lat, height = working_latitude(settings, positions), settings.site.height_m
+    if lat is None:
+        out.problems.append(NO_LATITUDE)
+        return out
     may_rerun = not rerun_wait or new_since_job >= s.min_new_positions
     if "drift" in s.trigger:
         try:
@@ -211,8 +215,9 @@ def _drift(
     # that wander between windows is not read as a step
     wander = possible_wander((getattr(current, "document", None) or {}).get("noise_model"))
     positions = with_sessions(store, positions, ids) if wander else positions
-    inputs = drift_inputs(positions, coefficients, covariance, settings.site.latitude_deg,
-                          settings.site.height_m, wander=wander)  # fmt: skip
+    lat = working_latitude(settings, positions)  # the ship's, else the site's
+    inputs = drift_inputs(positions, coefficients, covariance, lat, settings.site.height_m,
+                          wander=wander)  # fmt: skip
     per_day, measured = windows_per_day(store, settings)
     result = drift_test(inputs, DriftConfig.per_days(s.drift_false_alarm_days, per_day))
     last = len(ids) - 1
