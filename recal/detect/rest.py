@@ -68,6 +68,9 @@ class RestReference:
     gravity_unknown_g: float = 0.0
     k_coeff: float = 5.0
     k_sigma: float = 5.0
+    #: where the unit is (deg), for the vertical and horizontal parts of Earth's rate; None:
+    #: unknown (the rest check then judges the rate's norm only)
+    latitude_deg: float | None = None
 
     @classmethod
     def nominal(
@@ -86,6 +89,7 @@ class RestReference:
             gyro_bias_dph=np.zeros(3),
             accel_scale=np.full(3, float(accel_units_per_g)),
             accel_bias_g=np.zeros(3),
+            latitude_deg=float(latitude_deg),
         )
 
     @classmethod
@@ -132,6 +136,7 @@ class RestReference:
             source=str(coeffs.metadata.get("source", "the prior"))
             if coeffs.metadata
             else "the prior",
+            latitude_deg=float(latitude_deg),
         )
 
     def at_unknown_latitude(self) -> RestReference:
@@ -139,8 +144,17 @@ class RestReference:
         the reference is their mean and the tolerance grows by half their difference."""
         g_eq, g_pole = normal_gravity_g(0.0, 0.0), normal_gravity_g(90.0, 0.0)
         return replace(
-            self, gravity_g=0.5 * (g_eq + g_pole), gravity_unknown_g=0.5 * (g_pole - g_eq)
-        )
+            self, gravity_g=0.5 * (g_eq + g_pole), gravity_unknown_g=0.5 * (g_pole - g_eq),
+            latitude_deg=None,
+        )  # fmt: skip
+
+    def earth_rate_parts_dph(self) -> tuple[float, float]:
+        """Earth's rate along the local vertical (up) and across it, deg/h; NaN where the
+        latitude is unknown."""
+        if self.latitude_deg is None:
+            return math.nan, math.nan
+        phi = math.radians(self.latitude_deg)
+        return self.earth_rate_dph * math.sin(phi), self.earth_rate_dph * math.cos(phi)
 
     # ---- output units -> physics ----------------------------------------------------------
     def rate_dph(self, gyro_out: np.ndarray) -> np.ndarray:
@@ -175,13 +189,20 @@ class RestReference:
         gyro_sem_out: np.ndarray | None = None,
         accel_sem_out: np.ndarray | None = None,
         extra_rate_dph: np.ndarray | float = 0.0,
+        vertical_allowance_dph: np.ndarray | float = 0.0,
     ) -> np.ndarray:
         """One reason per window (``""`` where it is at rest), windows along axis 0.
 
         gyro_out / accel_out: (n, 3) window means in output units (either may be None);
         *_sem_out: (n, 3) their standard errors (NaN or None: noise not known, coefficients
         only). ``extra_rate_dph``: an allowance the caller adds to the rate tolerance (n,) or
-        scalar, deg/h.
+        scalar, deg/h. ``vertical_allowance_dph`` (n,) or scalar: how far the rate along
+        gravity may be off Earth's vertical rate, deg/h, beyond the tolerance: a hull's heading
+        creep or anchor swing, which the vertical rate cannot tell from a bias and which the
+        fit then leaves out (column ``gyro_vertical``, :mod:`recal.detect.creep`). Where it is
+        non-zero (and the latitude and the specific force are known), the rate is judged in
+        its two parts: across gravity against Earth's horizontal rate, along it within the
+        allowance; otherwise by its norm.
         """
         n = len(gyro_out) if gyro_out is not None else len(accel_out)  # type: ignore[arg-type]
         reason = np.full(n, "", dtype=object)
@@ -191,27 +212,90 @@ class RestReference:
             sem = _norm_sem(f, fn, accel_sem_out, self.accel_scale)
             bad = np.abs(fn - self.gravity_g) > (self.force_tolerance_g() + self.k_sigma * sem)
             reason[bad] = "accelerating"
-        if gyro_out is not None:
-            w = self.rate_dph(gyro_out)
-            wn = np.linalg.norm(w, axis=1)
-            sem = _norm_sem(w, wn, gyro_sem_out, self.gyro_scale)
-            tol = self.rate_tolerance_dph() + self.k_sigma * sem + extra_rate_dph
-            high = wn - self.earth_rate_dph > tol
-            low = self.earth_rate_dph - wn > tol
-            if high.any():
-                # Which way the excess points: along gravity (a heading change) or across it.
-                if accel_out is not None:
-                    up = self.force_g(accel_out)
-                    up = up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-12)
-                    vertical = np.abs(np.sum(w * up, axis=1))
-                    horizontal = np.sqrt(np.maximum(wn**2 - vertical**2, 0.0))
-                    # Earth's rate has both parts; the one that exceeds it names the motion
-                    turning = vertical >= horizontal
-                else:
-                    turning = np.ones(n, dtype=bool)
-                reason[high & turning & (reason == "")] = "turning"
-                reason[high & ~turning & (reason == "")] = "swinging"
-            reason[low & (reason == "")] = "rate_low"
+        if gyro_out is None:
+            return reason
+        allowance = np.broadcast_to(np.asarray(vertical_allowance_dph, float), (n,))
+        extra = np.broadcast_to(np.asarray(extra_rate_dph, float), (n,))
+        split = allowance > 0
+        if accel_out is None or self.latitude_deg is None:
+            split = np.zeros(n, dtype=bool)
+        gyro_out = np.asarray(gyro_out, float)
+        gs = None if gyro_sem_out is None else np.asarray(gyro_sem_out, float)
+        for part, judge in ((split, self._judge_in_parts), (~split, self._judge_norm)):
+            if not part.any():
+                continue
+            got = judge(
+                gyro_out[part], None if accel_out is None else np.asarray(accel_out)[part],
+                None if gs is None else gs[part], extra[part], allowance[part],
+            )  # fmt: skip
+            reason[part] = np.where(reason[part] == "", got, reason[part])
+        return reason
+
+    def _judge_norm(
+        self,
+        gyro_out: np.ndarray,
+        accel_out: np.ndarray | None,
+        gyro_sem_out: np.ndarray | None,
+        extra_rate_dph: np.ndarray,
+        allowance_dph: np.ndarray,
+    ) -> np.ndarray:
+        """The rate judged by its norm against Earth's rate (:meth:`judge`)."""
+        n = len(gyro_out)
+        reason = np.full(n, "", dtype=object)
+        w = self.rate_dph(gyro_out)
+        wn = np.linalg.norm(w, axis=1)
+        sem = _norm_sem(w, wn, gyro_sem_out, self.gyro_scale)
+        tol = self.rate_tolerance_dph() + self.k_sigma * sem + extra_rate_dph
+        high = wn - self.earth_rate_dph > tol
+        low = self.earth_rate_dph - wn > tol
+        if high.any():
+            # Which way the excess points: along gravity (a heading change) or across it.
+            if accel_out is not None:
+                up = self.force_g(accel_out)
+                up = up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-12)
+                vertical = np.abs(np.sum(w * up, axis=1))
+                horizontal = np.sqrt(np.maximum(wn**2 - vertical**2, 0.0))
+                # Earth's rate has both parts; the one that exceeds it names the motion
+                turning = vertical >= horizontal
+            else:
+                turning = np.ones(n, dtype=bool)
+            reason[high & turning] = "turning"
+            reason[high & ~turning] = "swinging"
+        reason[low & (reason == "")] = "rate_low"
+        return reason
+
+    def _judge_in_parts(
+        self,
+        gyro_out: np.ndarray,
+        accel_out: np.ndarray,
+        gyro_sem_out: np.ndarray | None,
+        extra_rate_dph: np.ndarray,
+        allowance_dph: np.ndarray,
+    ) -> np.ndarray:
+        """The rate judged across and along gravity (:meth:`judge`'s ``vertical_allowance_dph``):
+        "turning" where the vertical part is off Earth's by more than the allowance and the
+        tolerance, "swinging" or "rate_low" where the horizontal part is off Earth's."""
+        w = self.rate_dph(gyro_out)
+        up = self.force_g(accel_out)
+        up = up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-12)
+        vertical = np.sum(w * up, axis=1)
+        w_h = w - vertical[:, None] * up
+        h = np.linalg.norm(w_h, axis=1)
+        v_e, h_e = self.earth_rate_parts_dph()
+        s = (
+            np.zeros_like(w) if gyro_sem_out is None
+            else np.where(np.isfinite(gyro_sem_out), gyro_sem_out, 0.0) / np.abs(self.gyro_scale)
+        )  # fmt: skip
+        sem_v = np.sqrt(np.sum((up * s) ** 2, axis=1))
+        u_h = w_h / np.maximum(h, 1e-300)[:, None]
+        sem_h = np.sqrt(np.sum((u_h * s) ** 2, axis=1))
+        tol = self.rate_tolerance_dph() + extra_rate_dph
+        reason = np.full(len(w), "", dtype=object)
+        reason[np.abs(vertical - v_e) > allowance_dph + tol + self.k_sigma * sem_v] = "turning"
+        off_h = h - h_e
+        band = tol + self.k_sigma * sem_h
+        reason[(off_h > band) & (reason == "")] = "swinging"
+        reason[(-off_h > band) & (reason == "")] = "rate_low"
         return reason
 
 

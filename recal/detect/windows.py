@@ -22,7 +22,9 @@ from recal.model.positions import (
 #: Columns beyond docs/reference.md#positions that :func:`windows_to_columns` adds.
 #: ``gyro_still``: 1 where both triads were still, 0 for an accelerometer-only window (the gyro
 #: static invariants leave that row out; see recal.solve.problem).
-EXTRA_COLUMNS = ("frames_lost", "frames_invalid", "gyro_still")
+#: ``gyro_vertical`` (hull windows without the ship's heading): 0 where the rate along gravity is
+#: no measurement (heading creep, recal.detect.creep); ``creep_dph``: the heading rate, deg/h.
+EXTRA_COLUMNS = ("frames_lost", "frames_invalid", "gyro_still", "gyro_vertical", "creep_dph")
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +72,13 @@ class Window:
     #: motion-corrected estimates and its sems already carry the motion's residual, so they are
     #: used as they are, not pooled from Allan statistics (it has none).
     quasi_static: bool = False
+    #: False where the window's rate along gravity is no measurement: a hull's heading creep,
+    #: unknown without the ship's heading, sits in it like a bias (recal.detect.creep); the fit
+    #: then uses the rate across gravity only (recal.solve.problem)
+    gyro_vertical: bool = True
+    #: the hull's heading rate over the window, deg/h clockwise (measured from the ship's
+    #: heading where gyro_vertical, else estimated from the vertical excess); NaN: not known
+    creep_dph: float = math.nan
 
     @property
     def duration_s(self) -> float:
@@ -118,4 +127,10 @@ def windows_to_columns(windows: Sequence[Window]) -> dict[str, np.ndarray]:
     cols["frames_lost"] = np.array([w.frames_lost for w in windows], dtype=float)
     cols["frames_invalid"] = np.array([w.frames_invalid for w in windows], dtype=float)
     cols["gyro_still"] = still.astype(float)
+    vertical = np.array([w.gyro_vertical for w in windows], dtype=bool)
+    if not vertical.all():  # only where some window's vertical rate is no measurement
+        cols["gyro_vertical"] = vertical.astype(float)
+    creep = np.array([w.creep_dph for w in windows], dtype=float)
+    if np.isfinite(creep).any():
+        cols["creep_dph"] = creep
     return cols

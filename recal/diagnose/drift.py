@@ -190,7 +190,8 @@ def drift_inputs(
     step = FD_STEP * layout.typical(theta)
     pts = np.concatenate([theta[None], theta + np.diag(step), theta - np.diag(step)])
     x = problem.physical(pts)
-    values = _invariants(x, sensors, latitude_deg, height_m)  # (2D+1, M, 3)
+    free = problem.vertical_free  # the gyro norm across gravity, no dot (recal.detect.creep)
+    values = _invariants(x, sensors, problem.latitudes_deg, height_m, free)  # (2D+1, M, 3)
     residual = values[0]
     signature = -(values[1 : D + 1] - values[D + 1 :]) / (2 * step[:, None, None])
     signature = np.moveaxis(signature, 0, -1)  # (M, 3, D)
@@ -201,6 +202,7 @@ def drift_inputs(
     still = positions.columns.get("gyro_still")
     if still is not None:
         active[still == 0, 0] = active[still == 0, 2] = False
+    active[free, 2] = False
     noise, sens = _noise_and_sensitivity(problem, theta, x, sensors)
     residual = np.where(active, residual, 0.0)
     signature = np.where(active[..., None], signature, 0.0)
@@ -278,17 +280,35 @@ def _tested_sensors(
 
 
 def _invariants(
-    x: dict[str, np.ndarray], sensors: Sequence[str], lat: float, h: float
+    x: dict[str, np.ndarray],
+    sensors: Sequence[str],
+    lat: np.ndarray,
+    h: float,
+    free: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(P, M, 3) residuals |w| - Omega, |f| - g, w.f - ref (0 where a triad is missing)."""
+    """(P, M, 3) residuals |w| - Omega, |f| - g, w.f - ref (0 where a triad is missing); ``lat``
+    (M,) each window's latitude, deg. Where ``free`` (M,), the window's vertical rate is no
+    measurement (recal.detect.creep): the gyro's residual is its rate across gravity less
+    Earth's horizontal rate (the dot product is then left out by the caller)."""
     some = next(iter(x.values()))
     out = np.zeros(some.shape[:2] + (3,))
+    lat = np.broadcast_to(np.asarray(lat, float), some.shape[1:2])
+    g = np.array([normal_gravity_g(float(v), h) for v in lat])
     if "gyro" in x:
-        out[..., 0] = np.linalg.norm(x["gyro"], axis=-1) - OMEGA_IE_DEG_H
+        w = x["gyro"]
+        ref = np.full(len(lat), OMEGA_IE_DEG_H)
+        sq = np.sum(w * w, axis=-1)
+        if free is not None and free.any() and "accel" in x:
+            f = x["accel"]
+            vf = np.sum(w * f, axis=-1)
+            sq = np.where(free, np.maximum(sq - vf**2 / np.sum(f * f, axis=-1), 0.0), sq)
+            ref = np.where(free, OMEGA_IE_DEG_H * np.cos(np.radians(lat)), ref)
+        out[..., 0] = np.sqrt(sq) - ref
     if "accel" in x:
-        out[..., 1] = np.linalg.norm(x["accel"], axis=-1) - normal_gravity_g(lat, h)
+        out[..., 1] = np.linalg.norm(x["accel"], axis=-1) - g
     if len(sensors) == 2:
-        out[..., 2] = np.einsum("pmi,pmi->pm", x["gyro"], x["accel"]) - dot_reference(lat, h)
+        dot_ref = np.array([dot_reference(float(v), h) for v in lat])
+        out[..., 2] = np.einsum("pmi,pmi->pm", x["gyro"], x["accel"]) - dot_ref
     return out
 
 
@@ -331,6 +351,10 @@ def _noise_and_sensitivity(
     if len(sensors) == 2:
         J[:, 2, :3] = x["accel"][0]
         J[:, 2, 3:] = x["gyro"][0]
+        grads = problem.norm_gradients("gyro_norm", {s: x[s][0] for s in sensors})
+        J[:, 0, :3] = grads["gyro"]  # across gravity where the vertical rate is free
+        if "accel" in grads:
+            J[:, 0, 3:] = grads["accel"]
     sens = {
         s: np.einsum("mia,mab->mib", J[:, :, 3 * i : 3 * i + 3], dxdn_of[s])
         for i, s in enumerate(("gyro", "accel"))

@@ -14,9 +14,10 @@ anything is reported or written:
   rate for a gyro that sees it; three times a MEMS's documented turn-on bias for a gyro blind
   to it) or within twice its start, whichever is larger: a unit in raw counts with an ADC
   offset has a bias of several g, which its prior or the ellipsoid fit shows;
-* its reported 1-sigma says something: a scale factor's below :data:`MAX_RELATIVE_SIGMA` of it,
-  a bias's within that bound (a coefficient held at a start the positions cannot support would
-  carry the start's own, huge, 1-sigma);
+* an estimated one's reported 1-sigma says something: a scale factor's below
+  :data:`MAX_RELATIVE_SIGMA` of it, a bias's within that bound. A held one is never judged
+  here: a prior wider than that bound is held at the bound (:func:`physical_bounds`), so a
+  coefficient the positions cannot show never refuses the part they do show (issue 36);
 * an estimated one's 1-sigma from the window noise is not below :data:`MIN_SIGMA_SHARE` of the
   least that noise allows at the start: 1 / |J_i|, the whitened Jacobian column of that
   coefficient alone (every other one known). A fit that ran to where the model amplifies the
@@ -41,6 +42,34 @@ MIN_SIGMA_SHARE = 0.5
 MAX_RELATIVE_SIGMA = 0.5
 #: The terms checked: the seed model's scale factors and biases.
 CHECKED = ("gyro.scale", "gyro.bias", "accel.scale", "accel.bias")
+
+
+def physical_bounds(
+    layout, theta0: np.ndarray, references: dict[str, float], blind_gyro: bool = False
+) -> np.ndarray:
+    """(D,) the largest 1-sigma a coefficient may carry and still say something, inf where no
+    bound applies: a scale factor's :data:`MAX_RELATIVE_SIGMA` of its start, a bias's the
+    magnitude its triad reads at rest (gravity, Earth rate; three times a MEMS's turn-on bias
+    for a gyro blind to Earth rate) or twice its start, whichever is larger.
+
+    A held coefficient whose prior is wider than this is held at the bound (issue 36): no unit
+    can be further off, so the bound is the honest 1-sigma, and a prior without knowledge (a
+    default 1-sigma of 1.8e3 deg/h on an unseen gyro bias) no longer makes the whole answer
+    unbelievable. The estimated part stands; it is :func:`unbelievable` that judges it."""
+    out = np.full(layout.size, np.inf)
+    for term, sl in layout.term_slices().items():
+        if term not in CHECKED:
+            continue
+        v0 = np.asarray(theta0[sl], float)
+        if term.endswith(".scale"):
+            out[sl] = MAX_RELATIVE_SIGMA * np.abs(v0)
+            continue
+        sensor = term.split(".", 1)[0]
+        ref = references[sensor]
+        if sensor == "gyro" and blind_gyro:
+            ref = 3.0 * DEFAULT_PRIOR_SIGMA["mems"]["gyro.bias"]
+        out[sl] = np.maximum(ref, 2.0 * np.abs(v0))
+    return out
 
 
 def unbelievable(
@@ -76,10 +105,9 @@ def unbelievable(
                     f"{names[i]} = {v:.6g} against its start {v0:.6g} (a factor {ratio:.3g}; a "
                     f"believable scale factor keeps its sign and stays within {MAX_SCALE_FACTOR:g}x)"
                 )
-            if s > MAX_RELATIVE_SIGMA * abs(v):
+            if estimated[i] and s > MAX_RELATIVE_SIGMA * abs(v):
                 return (
-                    f"{names[i]} = {v:.6g} with a 1-sigma of {100 * s / abs(v):.3g} % "
-                    f"({'estimated' if estimated[i] else 'held at a start the positions cannot support'})"
+                    f"{names[i]} = {v:.6g} with a 1-sigma of {100 * s / abs(v):.3g} % (estimated)"
                 )
             continue
         ref = references[sensor]
@@ -91,7 +119,7 @@ def unbelievable(
                 f"{names[i]} = {v:.6g} is beyond {bound:.4g}, the magnitude its triad measures "
                 f"at rest (or twice its start {v0:.4g})"
             )
-        if s > bound:
+        if estimated[i] and s > bound:
             return (
                 f"{names[i]} = {v:.6g} with a 1-sigma of {s:.3g}, more than the {bound:.4g} it "
                 "may be at all"

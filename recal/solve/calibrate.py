@@ -35,7 +35,7 @@ from recal.model.plugins import bind_context, plugin_file, values_by_term
 from recal.model.positions import Positions
 from recal.model.terms import Term, catalogue_terms
 from recal.solve import result_json
-from recal.solve.believable import unbelievable
+from recal.solve.believable import physical_bounds, unbelievable
 from recal.solve.consider import consider_covariance
 from recal.solve.convergence import fixed_point, projected_start, swarm_convergence
 from recal.solve.earth_rate import (  # noqa: F401 - scale_noise_needed: re-exported
@@ -622,7 +622,17 @@ def calibrate(
     theta = np.where(report.estimated, theta, theta0)
     T = typical[:, None] * report.basis
     cov_measurement, chi2_red = covariance(problem, theta, T)
-    # the held coefficients are not exact: their prior uncertainty moves the estimated ones
+    # the held coefficients are not exact: their prior uncertainty moves the estimated ones.
+    # A prior wider than physics allows (no unit is further off) is held at that bound.
+    bounds = physical_bounds(layout, theta0, references(opt.latitude_deg, opt.height_m),
+                             blind_gyro(problem.models))  # fmt: skip
+    at_bound = ~report.estimated & (held_sigma.sigma > bounds)
+    if at_bound.any():
+        held_sigma = held_sigma._replace(sigma=np.where(at_bound, bounds, held_sigma.sigma))
+        notes.append(
+            "held at its physical bound (its prior 1-sigma was wider than any unit can be off): "
+            + ", ".join(layout.names[i] for i in np.flatnonzero(at_bound))
+        )
     sigma0 = held_sigma.sigma
     cov_held = consider_covariance(problem, theta, typical, report.basis, report.null, sigma0)
     cov = cov_measurement + cov_held

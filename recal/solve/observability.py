@@ -322,6 +322,40 @@ def _orthonormal_columns(V: np.ndarray) -> np.ndarray:
     return (V @ Wt.T) / s
 
 
+def _readmit(
+    cand: list[int],
+    dropped: list[tuple[int, float]],
+    off,
+    JC: np.ndarray,
+    structural: float,
+    threshold: float,
+    bar_coord: np.ndarray,
+) -> tuple[list[int], list[tuple[int, float]]]:
+    """Give back, one at a time, what the backward elimination held but the data show beside
+    what it kept (a forward step after the backward ones).
+
+    The elimination drops one coefficient at a time while many are still in, and a coefficient
+    that trades off with ones dropped later is lost for good: two poses, x up and x down, show
+    the accelerometer's x scale and bias apart (the two norms move together with the scale and
+    oppositely with the bias), but with the gyro's and the other axes' coefficients still in,
+    the x scale was dropped first, and the answer lost half its estimated part (issue 36). A
+    held coefficient comes back when, estimated with the kept ones, every one of them still
+    passes; the best-determined first."""
+    cand, dropped = list(cand), list(dropped)
+    while dropped:
+        best = None
+        for pos, (k, _) in enumerate(dropped):
+            trial = [*cand, k]
+            info = _conditional_information(off(JC[:, trial]), structural)
+            if np.all(info >= structural) and np.all(info * bar_coord[trial] >= threshold):
+                if best is None or info[-1] > best[1]:
+                    best = (pos, float(info[-1]))
+        if best is None:
+            break
+        cand.append(dropped.pop(best[0])[0])
+    return cand, dropped
+
+
 #: Coefficients whose gains (prior 1-sigma over the data's) lie within this fraction of the
 #: least are held in a fixed order (scale factors before biases, the layout's last first): a
 #: near tie, such as a hull-fixed accelerometer's vertical scale against its bias without a
@@ -443,6 +477,7 @@ def analyze(
             near = np.flatnonzero(gain <= gain.min() / (1.0 - TIE))
             j = int(max(near, key=lambda i: (prefer[cand[i]], cand[i])))
             dropped.append((cand.pop(j), float(info[j])))
+        cand, dropped = _readmit(cand, dropped, off, JC, structural, threshold, bar_coord)
         basis_cols.append(C[:, cand])
         if cand:
             s_kept.extend(float(v) for v in _conditional_information(off(JC[:, cand]), structural))

@@ -296,6 +296,8 @@ class Problem:
             names.append("dot")
         if self.gyro_rows is not None and self.gyro_rows.size == 0:  # no still gyro anywhere
             names = [n for n in names if n not in GYRO_STATIC]
+        if "dot" in names and self.rows_of("dot").size == 0:  # no window's vertical rate seen
+            names.remove("dot")
         if self.slews is not None:
             names.append("slew")
             if self.known_rotations is not None:
@@ -317,11 +319,37 @@ class Problem:
             return None
         return np.flatnonzero(col != 0)
 
+    @cached_property
+    def vertical_free(self) -> np.ndarray:
+        """(M,) True where a window's gyro rate along gravity is no measurement (column
+        ``gyro_vertical`` 0: a hull's heading creep, unknown without the ship's heading, sits in
+        it like a bias; recal.detect.creep). Its gyro norm is then taken across gravity,
+        against Earth's horizontal rate, and the dot product leaves it out: the creep moves
+        neither, and the accelerometer and the horizontal rate still count."""
+        col = self.positions.columns.get("gyro_vertical")
+        if col is None or not {"gyro", "accel"} <= set(self.sensors):
+            return np.zeros(self.M, dtype=bool)
+        return np.asarray(col, float) == 0
+
+    @cached_property
+    def latitudes_deg(self) -> np.ndarray:
+        """(M,) each window's latitude, deg: column ``latitude_deg`` (the ship's GNSS, means
+        over the window) where finite, else the site's ``latitude_deg``."""
+        col = self.positions.columns.get("latitude_deg")
+        lat = np.full(self.M, float(self.latitude_deg))
+        if col is not None:
+            col = np.asarray(col, float)
+            lat = np.where(np.isfinite(col), col, lat)
+        return lat
+
     def rows_of(self, name: str) -> np.ndarray:
         """The position (row) of each residual of a per-position invariant."""
+        rows = np.arange(self.M)
         if name in GYRO_STATIC and self.gyro_rows is not None:
-            return self.gyro_rows
-        return np.arange(self.M)
+            rows = self.gyro_rows
+        if name == "dot" and self.vertical_free.any():
+            rows = rows[~self.vertical_free[rows]]
+        return rows
 
     def n_of(self, name: str) -> int:
         """Residuals of invariant ``name``: one per position (the gyro norm and dot product:
@@ -334,14 +362,27 @@ class Problem:
             return len(self.closed_turns)
         return int(self.rows_of(name).shape[0])
 
-    def reference(self, name: str) -> float:
-        if name == "gyro_norm":
-            return OMEGA_IE_DEG_H
-        if name == "accel_norm":
-            return self.gravity_g
+    def reference(self, name: str) -> float | np.ndarray:
+        """What invariant ``name`` reads at rest: a float, or (n_of(name),) per window where the
+        windows' latitudes differ (:attr:`latitudes_deg`) or a gyro norm is taken across
+        gravity (:attr:`vertical_free`: Earth's horizontal rate)."""
         if name in ("slew", "rotation", "closure"):
             return 0.0
-        return dot_reference(self.latitude_deg, self.height_m)
+        rows = self.rows_of(name)
+        lat = self.latitudes_deg[rows]
+        uniform = bool(np.all(lat == self.latitude_deg))
+        if name == "gyro_norm":
+            free = self.vertical_free[rows]
+            if not free.any():
+                return OMEGA_IE_DEG_H
+            return np.where(free, OMEGA_IE_DEG_H * np.cos(np.radians(lat)), OMEGA_IE_DEG_H)
+        if name == "accel_norm":
+            if uniform:
+                return self.gravity_g
+            return np.array([normal_gravity_g(float(v), self.height_m) for v in lat])
+        if uniform:
+            return dot_reference(self.latitude_deg, self.height_m)
+        return np.array([dot_reference(float(v), self.height_m) for v in lat])
 
     @property
     def n_residuals(self) -> int:
@@ -385,9 +426,35 @@ class Problem:
                 rows = self.rows_of(name)
                 out[name] = np.einsum("ipm,ipm->pm", x["gyro"][..., rows], x["accel"][..., rows])
             else:
-                v = x[name.split("_")[0]][..., self.rows_of(name)]
+                rows = self.rows_of(name)
+                v = x[name.split("_")[0]][..., rows]
                 sq = np.einsum("ipm,ipm->pm", v, v)
+                free = self.vertical_free[rows] if name == "gyro_norm" else None
+                if free is not None and free.any():  # across gravity: the creep is along it
+                    f = x["accel"][..., rows]
+                    vf = np.einsum("ipm,ipm->pm", v, f)
+                    ff = np.maximum(np.einsum("ipm,ipm->pm", f, f), 1e-300)
+                    sq = np.where(free, np.maximum(sq - vf**2 / ff, 0.0), sq)
                 out[name] = sq if squared else np.sqrt(sq)
+        return out
+
+    def norm_gradients(self, name: str, x: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """d |x| / d x per triad (M, 3) of norm invariant ``name`` at the inputs ``x`` (sensor ->
+        (M, 3)), all positions: the unit vector; for a gyro norm taken across gravity
+        (:attr:`vertical_free`) the horizontal unit vector, and the specific force's share."""
+        sensor = name.split("_")[0]
+        v = x[sensor]
+        out = {sensor: v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)}
+        free = self.vertical_free if name == "gyro_norm" else np.zeros(self.M, dtype=bool)
+        if free.any():
+            f = x["accel"]
+            fn = np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-300)
+            u = f / fn
+            vv = np.sum(v * u, axis=1, keepdims=True)
+            vh = v - vv * u
+            h = np.maximum(np.linalg.norm(vh, axis=1, keepdims=True), 1e-300)
+            out["gyro"] = np.where(free[:, None], vh / h, out["gyro"])
+            out["accel"] = np.where(free[:, None], -vv / (h * fn) * vh, 0.0)
         return out
 
     @cached_property
@@ -503,11 +570,11 @@ class Problem:
         for n in self.window_invariants:
             rows = self.rows_of(n)
             windows.append(rows)
+            grads = self.norm_gradients(n, x) if n.endswith("_norm") else {}
             for s in self.sensors:
                 d = np.zeros((len(rows), 3))
-                if n == f"{s}_norm":
-                    v = x[s][rows]
-                    d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+                if s in grads:
+                    d = grads[s][rows]
                 elif n == "dot":
                     d = x["accel" if s == "gyro" else "gyro"][rows]
                 blocks[s].append(d / gains[s][rows])
@@ -647,9 +714,12 @@ class Problem:
                 w, f = x["gyro"], x["accel"]
                 var = np.sum(f**2 * sd_in["gyro"] ** 2 + w**2 * sd_in["accel"] ** 2, axis=1)
             else:
-                v = x[needed[0]]
-                u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
-                var = np.sum(u**2 * sd_in[needed[0]] ** 2, axis=1)
+                grads = self.norm_gradients(n, x)
+                var = sum(
+                    np.sum(g**2 * sd_in[s] ** 2, axis=1)
+                    for s, g in grads.items()
+                    if sd_in.get(s) is not None
+                )
             out[n] = np.sqrt(np.maximum(var[self.rows_of(n)], 1e-300))
         return out, source
 
@@ -724,6 +794,7 @@ class Problem:
             if self.noise_known_for(n):
                 continue
             rms = float(np.sqrt(np.mean(r[0] ** 2) / dof_frac))
-            out[n] = np.full(r.shape[1], max(rms, 1e-12 * abs(self.reference(n)) + 1e-300))
+            ref = float(np.max(np.abs(self.reference(n))))
+            out[n] = np.full(r.shape[1], max(rms, 1e-12 * ref + 1e-300))
             source[n] = "residuals"
         return self.with_sigma(out, source)

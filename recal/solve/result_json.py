@@ -46,7 +46,7 @@ def residual_summary(result: CalibrationResult) -> dict[str, Any]:
         noise = result.problem.noise_known_for(n)
         out[n] = {
             "unit": UNITS[n],
-            "reference": result.problem.reference(n),
+            "reference": _reference_json(result.problem.reference(n)),
             "rms_before": float(np.sqrt(np.mean(before[n] ** 2))),
             "rms_after": float(np.sqrt(np.mean(after[n] ** 2))),
             "noise_floor": float(np.sqrt(np.mean(result.problem.sigma[n] ** 2))) if noise else None,
@@ -55,9 +55,11 @@ def residual_summary(result: CalibrationResult) -> dict[str, Any]:
             "indicator_eq14_after": float(ind_after[n][0]),
             "per_position": [float(v) for v in after[n][0]],
         }
-        if n in ("gyro_norm", "dot") and result.problem.gyro_rows is not None:
-            # accelerometer-only windows (gyro not still) are left out: name the rows
-            out[n]["rows"] = [int(i) for i in result.problem.gyro_rows]
+        rows = result.problem.rows_of(n) if n in ("gyro_norm", "accel_norm", "dot") else None
+        if rows is not None and len(rows) < result.problem.M:
+            # windows left out (accelerometer-only ones; for the dot product also those whose
+            # vertical rate is no measurement): name the rows
+            out[n]["rows"] = [int(i) for i in rows]
         if n == "rotation":
             out[n]["per_rotation"] = out[n].pop("per_position")
             out[n]["rotations"] = result.problem.n_of(n) // 3
@@ -163,3 +165,12 @@ def result_json(result: CalibrationResult) -> dict[str, Any]:
             "kind": MC_KIND_PAPER if result.method.endswith("(paper mode)") else MC_KIND,
         }
     return out
+
+
+def _reference_json(ref: float | np.ndarray) -> float | list[float]:
+    """An invariant's reference: one number, or one per residual where the windows' latitudes
+    differ or a gyro norm is taken across gravity (recal.solve.problem.Problem.reference)."""
+    a = np.asarray(ref, float)
+    if a.ndim == 0 or np.all(a == a.flat[0]):
+        return float(a.flat[0]) if a.size else 0.0
+    return [float(v) for v in a]

@@ -176,7 +176,17 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
     prior = load_coefficients(args.prior, terms) if args.prior else None
     if prior is not None:
         _check_prior_plugins(prior, terms, args.prior)
-    if args.latitude is None:
+    import numpy as np
+
+    latitude = args.latitude
+    lat_col = None if positions is None else positions.columns.get("latitude_deg")
+    lat_col = None if lat_col is None else np.asarray(lat_col, float)
+    if lat_col is not None and np.isfinite(lat_col).any():
+        # the ship's GNSS, per window (recal positions --nmea, [nav]): each window is judged
+        # at its own latitude; --latitude only fills windows without one
+        if latitude is None:
+            latitude = float(np.nanmedian(lat_col))
+    elif latitude is None:
         print(
             "recal: --latitude not given, assuming 45 deg (gravity and the dot product "
             "depend on it)",
@@ -203,7 +213,7 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
         method=args.method,
         mc_runs=args.mc,
         seed=args.seed,
-        latitude_deg=45.0 if args.latitude is None else args.latitude,
+        latitude_deg=45.0 if latitude is None else latitude,
         height_m=args.height,
         prior=prior,
         effects=parse_effects(args.effects),
