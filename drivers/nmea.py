@@ -408,6 +408,28 @@ class NavTrack:
         )
 
 
+def heading_at(track: NavTrack, times_s: np.ndarray, max_gap_s: float = MAX_GAP_S) -> np.ndarray:
+    """The ship's true heading at ``times_s`` (the track's clock), deg in [0, 360): linear
+    between the heading fixes on the unwrapped angle (so 359 to 1 passes through 0), NaN where
+    the nearest fix before or after is more than ``max_gap_s`` away (the hull detector then takes
+    the window's vertical rate as no measurement, recal.detect.creep)."""
+    t = np.asarray(times_s, dtype=float)
+    data = track.arrays()
+    ok = np.isfinite(data["time_s"]) & np.isfinite(data["heading_deg"])
+    th, psi = data["time_s"][ok], data["heading_deg"][ok]
+    out = np.full(t.shape, _NAN)
+    if not th.size:
+        return out
+    unwrapped = np.degrees(np.unwrap(np.radians(psi)))
+    val = np.interp(t, th, unwrapped) % 360.0
+    k = np.searchsorted(th, t)
+    before = np.where(k > 0, t - th[np.maximum(k - 1, 0)], np.inf)
+    after = np.where(k < th.size, th[np.minimum(k, th.size - 1)] - t, np.inf)
+    covered = (np.minimum(before, after) <= max_gap_s) & (before + after <= 2 * max_gap_s)
+    out[covered] = val[covered]
+    return out
+
+
 def circular_mean_deg(angles_deg: np.ndarray) -> float:
     """The direction of the mean unit vector, [0, 360) deg (359 and 1 average to 0, not 180);
     NaN for none."""

@@ -63,6 +63,21 @@ class DeviceClock:
             if rel >= last + CLOCK_STEP_S or (not self._pairs and rel >= 0.0):
                 self._pairs.append((rel, float(h[-1])))
 
+    def hosts(self, time_s: np.ndarray) -> np.ndarray | None:
+        """The host times of frames at device times ``time_s`` (as the batches give them, not
+        relative to the first frame), vectorised; None before any frame."""
+        with self._lock:
+            if not self._pairs or self._t0 is None:
+                return None
+            t0 = self._t0
+            dev = np.array([p[0] for p in self._pairs])
+            host = np.array([p[1] for p in self._pairs])
+        rel = np.asarray(time_s, dtype=float) - t0
+        out = np.interp(rel, dev, host)
+        # past either end: on at 1 s per s (the map's slope there)
+        out = np.where(rel > dev[-1], host[-1] + (rel - dev[-1]), out)
+        return np.where(rel < dev[0], host[0] - (dev[0] - rel), out)
+
     def host(self, device_s: float) -> float | None:
         """The host time of device time ``device_s`` (s from the first frame), None before any
         frame."""
@@ -129,6 +144,17 @@ class ShipSensors:
     def observe(self, batch: Any) -> None:
         """A batch of frames the pipeline takes (its device and host times)."""
         self.clock.observe(batch.time_s, batch.host_time_s)
+
+    def heading_of(self, time_s: np.ndarray) -> np.ndarray | None:
+        """The ship's true heading at each frame (device times as the batches give them), deg,
+        NaN where the track has none near; None when no heading has come at all."""
+        from drivers.nmea import heading_at
+
+        hosts = self.clock.hosts(time_s)
+        if hosts is None:
+            return None
+        psi = heading_at(self.track, hosts)
+        return psi if np.isfinite(psi).any() else None
 
     def over(self, windows: Sequence[Any]) -> list[Any]:
         """The ship over each window (drivers.nmea.NavWindow), None where the track does not

@@ -711,7 +711,11 @@ class Ingest:
             from drivers import FrameBatch
 
             b = FrameBatch.concat(batches)
-            found += self._hull.feed(b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid)
+            # the ship's heading per frame ([nav] HDT/THS): the hull's creep measured, not
+            # guessed (recal.detect.creep)
+            psi = None if self._nav is None else self._nav.heading_of(b.time_s)
+            found += self._hull.feed(b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid,
+                                     heading_deg=psi)  # fmt: skip
         if flush:
             found += self._hull.flush()
         windows, ships = self._ship_state([hw.window for hw in found])

@@ -14,7 +14,15 @@ A :class:`VesselSpec` is a list of :class:`Segment` s:
   only the ramps;
 * ``index``: the indexing mechanism turns the IMU in the hull to ``mount_rpy_deg`` about the
   fixed axis of the relative rotation (raised-cosine angle profile, as the lab sessions of
-  :mod:`recal.sim.session`).
+  :mod:`recal.sim.session`);
+* ``transit``: the ship sails on its heading at ``speed_kn`` (from a standstill and back to one,
+  raised-cosine speed ramps of ``VesselSpec.speed_ramp_s``), a straight line over a spherical
+  Earth of radius :data:`recal.detect.underway.EARTH_RADIUS_M`. Only here does the vessel move
+  over the Earth: its inputs then carry the transport rate w_en^n = (v_E / R, -v_N / R,
+  -v_E tan(lat) / R), Earth's rate and gravity at the latitude it has reached, and the Coriolis
+  and Eotvos accelerations (2 w_ie^n + w_en^n) x v^n besides the speed ramps' own;
+  :func:`ship_track` gives its position, speed, course and heading (what its GNSS and
+  gyrocompass say).
 
 The sea (:class:`SeaState`) moves the hull in every segment: roll, pitch and yaw swing, each a
 narrow-band sum of sinusoids (``components`` periods spread by ``period_spread`` around the
@@ -61,8 +69,9 @@ from recal.sim.session import MAX_SAMPLES, Session, axis_angle, sample_context
 from recal.sim.simulate import NoiseSpec, truth_model
 
 _RAD_S_TO_DEG_H = math.degrees(1.0) * 3600.0
+_KNOT_M_S = 1852.0 / 3600.0
 
-SegmentKind = Literal["hold", "turn", "index"]
+SegmentKind = Literal["hold", "turn", "index", "transit"]
 
 
 @dataclass(frozen=True)
@@ -114,10 +123,16 @@ class Segment:
     heading_change_deg: float = 0.0
     mount_rpy_deg: tuple[float, float, float] | None = None
     sea_scale: float = 1.0
+    #: a transit's speed over ground, kn (its ramps in and out included in ``duration_s``)
+    speed_kn: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.kind not in ("hold", "turn", "index"):
-            raise RecalInputError(f"segment kind must be hold, turn or index, not {self.kind!r}")
+        if self.kind not in ("hold", "turn", "index", "transit"):
+            raise RecalInputError(
+                f"segment kind must be hold, turn, index or transit, not {self.kind!r}"
+            )
+        if not (math.isfinite(self.speed_kn) and self.speed_kn >= 0):
+            raise RecalInputError(f"a transit's speed must be >= 0 kn, not {self.speed_kn}")
         if not (math.isfinite(self.duration_s) and self.duration_s > 0):
             raise RecalInputError(f"segment duration must be positive, not {self.duration_s}")
         if self.kind == "index" and self.mount_rpy_deg is None:
@@ -136,6 +151,8 @@ class VesselSpec:
     sea: SeaState = field(default_factory=SeaState)
     turn_ramp_s: float = 5.0
     sea_ramp_s: float = 60.0
+    #: a transit's speed rises from and falls to a standstill over this, s
+    speed_ramp_s: float = 60.0
 
     def __post_init__(self) -> None:
         if not self.segments:
@@ -144,6 +161,11 @@ class VesselSpec:
             if s.kind == "turn" and s.duration_s <= 2.0 * self.turn_ramp_s:
                 raise RecalInputError(
                     f"a {s.duration_s:g} s turn is shorter than its two {self.turn_ramp_s:g} s ramps"
+                )
+            if s.kind == "transit" and s.duration_s <= 2.0 * self.speed_ramp_s:
+                raise RecalInputError(
+                    f"a {s.duration_s:g} s transit is shorter than its two {self.speed_ramp_s:g} s "
+                    "speed ramps"
                 )
 
     @property
@@ -160,8 +182,12 @@ class VesselSpec:
         sea: SeaState | None = None,
         heading0_deg: float = 0.0,
         mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        transit_s: float = 0.0,
+        transit_kn: float = 12.0,
     ) -> VesselSpec:
-        """``holds`` holds of ``hold_s`` joined by steady ``turn_deg`` turns of ``turn_s``."""
+        """``holds`` holds of ``hold_s`` joined by steady ``turn_deg`` turns of ``turn_s``; with
+        ``transit_s``, the ship sails that long at ``transit_kn`` on its heading after the first
+        half of the holds (ceil(holds / 2)), to another berth where the rest are held."""
         if holds < 1:
             raise RecalInputError("a berth schedule needs at least one hold")
         segs: list[Segment] = []
@@ -169,6 +195,8 @@ class VesselSpec:
             if k:
                 segs.append(Segment("turn", turn_s, heading_change_deg=turn_deg))
             segs.append(Segment("hold", hold_s))
+            if transit_s and k == (holds + 1) // 2 - 1:
+                segs.append(Segment("transit", transit_s, speed_kn=transit_kn))
         return cls(tuple(segs), heading0_deg, mount_rpy_deg, sea or SeaState())
 
     @classmethod
@@ -230,6 +258,17 @@ class _Schedule:
         scale = np.array([s.sea_scale for s in spec.segments])
         self.sea_scale = scale
         self.sea_prev = np.concatenate(([scale[0]], scale[:-1]))
+        # transits: speed (m/s) and the track's north and east at each segment's start (m)
+        self.speed = np.array([s.speed_kn * _KNOT_M_S if s.kind == "transit" else 0.0
+                               for s in spec.segments])  # fmt: skip
+        self.has_transit = bool(np.any(self.speed > 0))
+        sailed = self.speed * np.maximum(durations - spec.speed_ramp_s, 0.0)
+        self.north_start = np.concatenate(
+            ([0.0], np.cumsum(sailed * np.cos(self.heading_start))[:-1])
+        )
+        self.east_start = np.concatenate(
+            ([0.0], np.cumsum(sailed * np.sin(self.heading_start))[:-1])
+        )
         # mounts: C_vb at each segment's start, and for index segments the axis and angle
         mounts = [attitude_matrix(*np.radians(spec.mount_rpy_deg))]
         axes, angles = [], []
@@ -307,6 +346,40 @@ class _Schedule:
         rate = np.where(x > T - tau, R * 0.5 * (1.0 + np.cos(np.pi * down / tau)), rate)
         return self.heading_start[seg] + angle, rate
 
+    def track(self, t: np.ndarray, seg: np.ndarray) -> dict[str, np.ndarray]:
+        """The ship over the Earth: north and east of its start (m), velocity (m/s) and
+        acceleration (m/s^2) north and east, speed over ground (m/s) and course (rad). A transit
+        sails on the heading its segment starts with; its speed rises over ``speed_ramp_s``
+        (raised cosine), stays, and falls to a standstill at the segment's end."""
+        tau = self.spec.speed_ramp_s
+        T = self.duration[seg]
+        V = self.speed[seg]
+        x = np.clip(t - self.start[seg], 0.0, T)
+
+        def ramp_distance(x_: np.ndarray) -> np.ndarray:  # per unit speed, up a ramp
+            return 0.5 * (x_ - tau / np.pi * np.sin(np.pi * x_ / tau))
+
+        up = np.minimum(x, tau)
+        down = np.clip(x - (T - tau), 0.0, tau)
+        dist = V * (ramp_distance(up) + np.clip(x - tau, 0.0, T - 2.0 * tau)
+                    + down - ramp_distance(down))  # fmt: skip
+        speed = np.where(x < tau, V * 0.5 * (1.0 - np.cos(np.pi * up / tau)), V)
+        speed = np.where(x > T - tau, V * 0.5 * (1.0 + np.cos(np.pi * down / tau)), speed)
+        accel = np.where(x < tau, V * 0.5 * np.pi / tau * np.sin(np.pi * up / tau), 0.0)
+        accel = np.where(x > T - tau, -V * 0.5 * np.pi / tau * np.sin(np.pi * down / tau), accel)
+        course = self.heading_start[seg]
+        c, s = np.cos(course), np.sin(course)
+        return {
+            "north": self.north_start[seg] + dist * c,
+            "east": self.east_start[seg] + dist * s,
+            "v_north": speed * c,
+            "v_east": speed * s,
+            "a_north": accel * c,
+            "a_east": accel * s,
+            "speed": speed,
+            "course": course,
+        }
+
     def mount(self, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """C_vb (N, 3, 3) and the indexing rate w_vb^b (N, 3) rad/s."""
         T = self.duration[seg]
@@ -358,13 +431,16 @@ def _inputs(
     lat = math.radians(latitude_deg)
     w_ie = OMEGA_IE_RAD_S * np.array([math.cos(lat), 0.0, -math.sin(lat)])
     w_nv = _vessel_rate(att)
-    w_ib = (
-        np.einsum("nji,j->ni", C_nb, w_ie)
-        + np.einsum("nji,nj->ni", C_vb, w_nv)  # C_bv w_nv^v
-        + att["w_vb"]
-    )
+    if sched.has_transit:  # the ship moves over the Earth (_under_way); at a berth it does not
+        w_in, a_move, gravity_g = _under_way(sched, t, att["segment"], latitude_deg, gravity_g)
+        w_ib = np.einsum("nji,nj->ni", C_nb, w_in)
+    else:
+        w_ib = np.einsum("nji,j->ni", C_nb, w_ie)
+    w_ib = w_ib + np.einsum("nji,nj->ni", C_vb, w_nv) + att["w_vb"]  # C_bv w_nv^v, indexing
     a_n = np.zeros((len(t), 3))
-    a_n[:, 2] = -att["heave_ddot"]  # heave is up, NED z is down
+    if sched.has_transit:
+        a_n += a_move
+    a_n[:, 2] -= att["heave_ddot"]  # heave is up, NED z is down
     if np.any(sched.lever):
         # d2/dt2 (C_nv r) = C_nv (alpha x r + w x (w x r)), alpha from a central difference of w
         h = 1e-3
@@ -378,6 +454,64 @@ def _inputs(
     f_n[:, 2] -= gravity_g
     f_b = np.einsum("nji,nj->ni", C_nb, f_n)
     return w_ib * _RAD_S_TO_DEG_H, f_b, C_nb
+
+
+def _under_way(
+    sched: _Schedule, t: np.ndarray, seg: np.ndarray, latitude_deg: float, gravity_g: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For a schedule with transits, at times ``t``: the navigation frame's inertial rate
+    w_ie^n + w_en^n (N, 3) rad/s at the latitude reached, the kinematic acceleration besides
+    the sea's, dv^n/dt + (2 w_ie^n + w_en^n) x v^n (N, 3) m/s^2, and normal gravity there (N,)
+    g (``gravity_g`` at the start latitude, moved by the change of normal gravity)."""
+    from recal.detect.underway import EARTH_RADIUS_M as R
+
+    tr = sched.track(t, seg)
+    lat = math.radians(latitude_deg) + tr["north"] / R
+    v = np.column_stack([tr["v_north"], tr["v_east"], np.zeros(len(t))])
+    w_ie = OMEGA_IE_RAD_S * np.column_stack([np.cos(lat), np.zeros(len(t)), -np.sin(lat)])
+    w_en = np.column_stack([tr["v_east"] / R, -tr["v_north"] / R, -tr["v_east"] * np.tan(lat) / R])
+    a = np.column_stack([tr["a_north"], tr["a_east"], np.zeros(len(t))])
+    a = a + np.cross(2.0 * w_ie + w_en, v)
+    deg = np.degrees(lat)
+    lo, hi = float(deg.min()), float(deg.max())
+    g0 = normal_gravity_g(latitude_deg)  # normal gravity's change with latitude, exact at lo, hi
+    g = gravity_g + np.interp(
+        deg, [lo, hi + 1e-9], [normal_gravity_g(lo) - g0, normal_gravity_g(hi) - g0]
+    )
+    return w_ie + w_en, a, g
+
+
+def ship_track(
+    spec: VesselSpec,
+    time_s: np.ndarray,
+    latitude_deg: float = 45.0,
+    longitude_deg: float = 0.0,
+    height_m: float = 0.0,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """What the ship's own sensors say at ``time_s`` (s from the start) of the recording
+    :func:`vessel_chunks` makes of ``spec`` with this ``seed``: ``latitude_deg``,
+    ``longitude_deg`` and ``height_m`` of its GNSS antenna (the hull's centre of rotation),
+    ``sog_kn`` and ``cog_deg`` (speed and course over ground) and ``heading_deg`` (true heading,
+    the sea's yaw swing and slow heading changes included), each (N,). Pure numbers: the NMEA
+    sentences are written by the caller (service.cli.simulate)."""
+    from recal.detect.underway import EARTH_RADIUS_M as R
+
+    sched = _Schedule(spec, seed)
+    t = np.asarray(time_s, dtype=float)
+    att = sched.attitude(t)
+    tr = sched.track(t, att["segment"])
+    lat = latitude_deg + np.degrees(tr["north"] / R)
+    mid = np.radians(0.5 * (latitude_deg + lat))  # a straight course: cos at the mean latitude
+    lon = longitude_deg + np.degrees(tr["east"] / (R * np.cos(mid)))
+    return {
+        "latitude_deg": lat,
+        "longitude_deg": (lon + 180.0) % 360.0 - 180.0,
+        "height_m": np.full(len(t), float(height_m)),
+        "sog_kn": tr["speed"] / _KNOT_M_S,
+        "cog_deg": np.degrees(tr["course"]) % 360.0,
+        "heading_deg": np.degrees(att["heading"]) % 360.0,
+    }
 
 
 def _check(spec: VesselSpec, rate_hz: float, latitude_deg: float) -> None:

@@ -58,6 +58,10 @@ VESSEL_YAW_SWING_DEG = 0.1
 VESSEL_YAW_PERIOD_S = 180.0
 VESSEL_HEAVE_PERIOD_S = 8.0
 VESSEL_ARW_DEG_RT_H = 0.012
+#: A transit's speed (VesselSpec.berth's transit_kn), and the UTC of the ship's first NMEA
+#: sentence when not given.
+VESSEL_TRANSIT_KN = 12.0
+VESSEL_UTC_START = "2026-03-01T00:00:00Z"
 #: Seconds of samples simulated and written at a time.
 VESSEL_CHUNK_S = 600.0
 
@@ -326,6 +330,46 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="heave period, s (default %(default)g)",
     )
     v.add_argument(
+        "--transit",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="--berth: after the first half of the holds the ship sails this long at "
+        "--transit-kn on its heading (speed ramps of 60 s in and out included) to another berth, "
+        "where it holds the rest; the gyro and accelerometer see the transport rate, Earth's "
+        "rate at the latitude reached, and the Coriolis and Eotvos accelerations (default 0: "
+        "no transit)",
+    )
+    v.add_argument(
+        "--transit-kn",
+        type=float,
+        default=VESSEL_TRANSIT_KN,
+        metavar="KN",
+        help="--transit: speed over ground, kn (default %(default)g)",
+    )
+    v.add_argument(
+        "--nmea",
+        metavar="OUT.nmea",
+        help="also write the ship's own sensors as NMEA 0183 lines (GGA, RMC, VTG from a GNSS, "
+        "HDT from a gyrocompass; conventions section 12) at --nmea-rate, from the simulated "
+        "position, speed, course and heading; its first sentence is the recording's first "
+        "sample (read it with recal positions ... --nmea OUT.nmea)",
+    )
+    v.add_argument(
+        "--nmea-rate",
+        type=float,
+        default=1.0,
+        metavar="HZ",
+        help="--nmea: fixes per second, 0.1 to 10 (default %(default)g)",
+    )
+    v.add_argument(
+        "--utc-start",
+        metavar="ISO8601",
+        default=VESSEL_UTC_START,
+        help="--nmea: the UTC of the first sample (the sentences' time and date; default "
+        "%(default)s)",
+    )
+    v.add_argument(
         "--lever-arm",
         metavar="X,Y,Z",
         default="0,0,0",
@@ -389,6 +433,8 @@ def run(args: argparse.Namespace) -> int:
         raise RecalInputError("--trajectory and --berth/--indexing are different simulations: "
                               "give one")  # fmt: skip
     if args.trajectory:
+        if args.nmea or args.transit:
+            raise RecalInputError("--nmea and --transit need --berth (or --indexing for --nmea)")
         return _run_trajectory(args)
     if vessel:
         return _run_vessel(args)
@@ -396,6 +442,8 @@ def run(args: argparse.Namespace) -> int:
         raise RecalInputError(
             "--recording and --track need --trajectory voyage|static, --berth or --indexing"
         )
+    if args.nmea or args.transit:
+        raise RecalInputError("--nmea and --transit need --berth (or --indexing for --nmea)")
     catalogue = catalogue_terms()
     hidden = []
     for name in parse_effects(args.hidden):
@@ -638,7 +686,7 @@ def _run_vessel(args: argparse.Namespace) -> int:
     if recording is None and args.capture is None:
         raise RecalInputError(f"{mode} needs -o OUT.csv (a CSV recording), --capture OUT.bin, "
                               "or both")  # fmt: skip
-    for out in (recording, args.capture, args.track, args.truth_out):
+    for out in (recording, args.capture, args.track, args.truth_out, args.nmea):
         folder = Path(out).parent if out is not None else None
         if folder is not None and str(folder) and not folder.is_dir():
             raise RecalInputError(f"output folder {folder} does not exist")
@@ -652,6 +700,7 @@ def _run_vessel(args: argparse.Namespace) -> int:
     if not (np.isfinite(args.hold) and args.hold > 0):
         raise RecalInputError(f"--hold must be positive, not {args.hold}")
     lever = _triple(args.lever_arm, "--lever-arm")
+    utc_start = _nmea_start(args) if args.nmea else None
     roll, pitch, yaw = parse_attitude(args.attitude)
     sea = SeaState(
         roll_deg=args.roll,
@@ -668,6 +717,8 @@ def _run_vessel(args: argparse.Namespace) -> int:
         if roll or pitch:
             raise RecalInputError("with --indexing the stops give the IMU's attitude in the hull: "
                                   "--attitude takes only the heading (0,0,YAW)")  # fmt: skip
+        if args.transit:
+            raise RecalInputError("--transit sails between berths: it needs --berth")
         stops = [_triple(stop, "--indexing stop") for stop in args.indexing.split("/")]
         if not (np.isfinite(args.index_s) and args.index_s > 0):
             raise RecalInputError(f"--index-s must be positive, not {args.index_s}")
@@ -679,10 +730,17 @@ def _run_vessel(args: argparse.Namespace) -> int:
             raise RecalInputError(f"--holds must be at least 1, not {args.holds}")
         if not (np.isfinite(args.turn_s) and np.isfinite(args.turn_deg)):
             raise RecalInputError("--turn-s and --turn-deg must be finite numbers")
+        if not (np.isfinite(args.transit) and args.transit >= 0):
+            raise RecalInputError(f"--transit must be a duration >= 0 s, not {args.transit}")
+        if args.transit and not (np.isfinite(args.transit_kn) and args.transit_kn > 0):
+            raise RecalInputError(f"--transit-kn must be a positive speed, not {args.transit_kn}")
         spec = VesselSpec.berth(args.holds, args.hold, args.turn_s, args.turn_deg, sea,
-                                heading0_deg=yaw, mount_rpy_deg=(roll, pitch, 0.0))  # fmt: skip
+                                heading0_deg=yaw, mount_rpy_deg=(roll, pitch, 0.0),
+                                transit_s=args.transit, transit_kn=args.transit_kn)  # fmt: skip
         what = (f"{args.holds} berth holds of {args.hold:g} s joined by {args.turn_deg:g}-degree "
                 f"turns of {args.turn_s:g} s")  # fmt: skip
+        if args.transit:
+            what += f", with a {args.transit:g} s transit at {args.transit_kn:g} kn"
 
     catalogue = catalogue_terms()
     base = kvh_like_truth(np.random.default_rng(args.seed))
@@ -720,6 +778,8 @@ def _run_vessel(args: argparse.Namespace) -> int:
         atomic_write(args.track, _schedule_csv(spec))
     if args.truth_out:
         atomic_write(args.truth_out, json.dumps(truth.to_json_dict(catalogue), indent=2) + "\n")
+    if args.nmea:
+        atomic_write(args.nmea, _nmea_log(spec, args, utc_start))
     where = " and ".join(p for p in (recording, args.capture) if p)
     # a CSV log carries no units: the hull detector converts it with the coefficients
     prior = args.truth_out or "COEFFS.json"
@@ -730,8 +790,10 @@ def _run_vessel(args: argparse.Namespace) -> int:
         f"{n_total:,} samples; sea: roll {sea.roll_deg:g} deg, pitch {sea.pitch_deg:g} deg, yaw "
         f"swing {sea.yaw_swing_deg:g} deg, heave {sea.heave_m:g} m) to {where}"
         + (f"; schedule to {args.track}" if args.track else "")
+        + (f"; the ship's NMEA sentences to {args.nmea}" if args.nmea else "")
         + f"; read it with `recal positions {first} --format {fmt_flag} --motion hull "
-        f"--latitude {args.latitude:g} -o POSITIONS.csv`",
+        + (f"--nmea {args.nmea}" if args.nmea else f"--latitude {args.latitude:g}")
+        + " -o POSITIONS.csv`",
         file=sys.stderr,
     )
     return 0
@@ -752,17 +814,58 @@ def _triple(text: str, flag: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def _nmea_start(args: argparse.Namespace):
+    """``--utc-start`` as a UTC datetime; ``--nmea-rate`` checked."""
+    import datetime as dt
+    import math
+
+    from recal.errors import RecalInputError
+
+    if not (math.isfinite(args.nmea_rate) and 0.1 <= args.nmea_rate <= 10.0):
+        raise RecalInputError(f"--nmea-rate {args.nmea_rate}: a talker sends 0.1 to 10 fixes/s")
+    try:
+        start = dt.datetime.fromisoformat(args.utc_start.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise RecalInputError(
+            f"--utc-start {args.utc_start!r}: expected an ISO 8601 time, e.g. 2026-03-01T12:00:00Z"
+        ) from None
+    return (start if start.tzinfo else start.replace(tzinfo=dt.UTC)).astimezone(dt.UTC)
+
+
+def _nmea_log(spec, args: argparse.Namespace, utc_start) -> bytes:
+    """The ship's sensors over the recording (recal.sim.vessel.ship_track) as NMEA 0183 lines,
+    an epoch of GGA, RMC, VTG and HDT every 1 / --nmea-rate s, the first at the first sample,
+    written by pynmeagps's message classes (drivers.nmea.epoch_sentences)."""
+    import datetime as dt
+
+    import numpy as np
+
+    from drivers.nmea import epoch_sentences
+    from recal.sim.vessel import ship_track
+
+    times = np.arange(0.0, spec.duration_s, 1.0 / args.nmea_rate)
+    tr = ship_track(spec, times, args.latitude, args.longitude, args.height, args.seed)
+    cols = [tr[k] for k in ("latitude_deg", "longitude_deg", "height_m", "sog_kn", "cog_deg",
+                            "heading_deg")]  # fmt: skip
+    out = bytearray()
+    for k, t in enumerate(times.tolist()):  # a loop over fixes (1 to 10 a second), not samples
+        utc = utc_start + dt.timedelta(seconds=t)
+        out += epoch_sentences(utc, *(float(c[k]) for c in cols))
+    return bytes(out)
+
+
 def _schedule_csv(spec) -> str:
-    """One row per segment of a vessel schedule: what it is, when, and the heading it turns to."""
+    """One row per segment of a vessel schedule: what it is, when, the heading it turns to and
+    a transit's speed."""
     rows = ["segment,kind,start_s,end_s,heading_start_deg,heading_end_deg,mount_roll_deg,"
-            "mount_pitch_deg,mount_yaw_deg"]  # fmt: skip
+            "mount_pitch_deg,mount_yaw_deg,speed_kn"]  # fmt: skip
     t, heading, mount = 0.0, spec.heading0_deg, spec.mount_rpy_deg
     for k, seg in enumerate(spec.segments):
         end = heading + (seg.heading_change_deg if seg.kind == "turn" else 0.0)
         if seg.kind == "index" and seg.mount_rpy_deg is not None:
             mount = seg.mount_rpy_deg
         rows.append(f"{k},{seg.kind},{t:.6g},{t + seg.duration_s:.6g},{heading:.6g},{end:.6g},"
-                    + ",".join(f"{m:g}" for m in mount))  # fmt: skip
+                    + ",".join(f"{m:g}" for m in mount) + f",{seg.speed_kn:g}")  # fmt: skip
         t += seg.duration_s
         heading = end
     return "\n".join(rows) + "\n"

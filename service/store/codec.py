@@ -61,11 +61,20 @@ def columns_of(rows: Sequence[PositionRow], ship: bool = False) -> dict[str, np.
         if any(v is not None for v in values):
             cols[name] = np.array([math.nan if v is None else v for v in values], dtype=float)
     shared = [k for k in rows[0].extra if k not in cols and all(k in r.extra for r in rows)]
-    for name in shared:
+    # ... and the windows' own flags that only some batches carry: a hull window whose vertical
+    # rate is no measurement (gyro_vertical 0, recal.detect.creep) must stay one beside windows
+    # stored before or with the ship's heading (NaN there: a measurement)
+    partial = [k for k in PARTIAL_EXTRAS if k not in cols and k not in shared
+               and any(k in r.extra for r in rows)]  # fmt: skip
+    for name in [*shared, *partial]:
         cols[name] = np.array(
-            [math.nan if r.extra[name] is None else r.extra[name] for r in rows], dtype=float
+            [math.nan if r.extra.get(name) is None else r.extra[name] for r in rows], dtype=float
         )
     return cols
+
+
+#: Extra columns kept even where only some rows have them (NaN in the others).
+PARTIAL_EXTRAS = ("gyro_vertical", "creep_dph")
 
 
 def record_of(row: CalibrationRow) -> CalibrationRecord:

@@ -199,13 +199,20 @@ def test_hull_daemon_takes_its_latitude_from_a_serial_talker(tmp_path, berth, se
             with Talker(talker.send):
                 assert _wait_until(lambda: service.nav.latitude_deg() is not None)
                 replay(service, len(data))
-            _stored_with_ship(service, session.n_holds)
+            cols = _stored_with_ship(service, session.n_holds)
             ref = service.ingest._hull.ref
             health = service.health()
     finally:
         talker.close()
     assert ref.gravity_unknown_g == 0
     assert ref.gravity_g == pytest.approx(normal_gravity_g(SHIP_LAT, 0.0), abs=1e-12)
+    # the ship's heading reached the hull detector: a window it covers has its creep measured
+    # from it (HDT holds at 123.4: none) and its vertical rate stays a measurement; a window
+    # the replay outran (faster than real time) has it estimated and its vertical rate free
+    measured = np.abs(cols["creep_dph"]) < 1e-6
+    assert measured.any()
+    vertical = cols.get("gyro_vertical", np.ones(len(measured)))
+    assert np.all(vertical[measured] != 0) and np.all(vertical[~measured] == 0)
     assert health["nav"]["state"] in ("ok", "silent") and health["nav"]["connected"]
     assert health["detector"]["rejected"]["underway"] == 0
 
