@@ -9,8 +9,15 @@ there should be usable. The recording is written chunk by chunk as a KVH Format 
 reduced rate (10 Hz by default), then replayed through a real ``replay://`` port into the
 daemon (reader, ingest thread, ``[detector] motion = "hull"``, SQLite, scheduler with jobs of
 the shipped method, MCS-NAFSA (``--method lm`` for LM), in worker processes, the gate with ``publish_observable_part``, the publisher), which starts
-from a prior: the truth drawn within 100 ppm, 0.01 deg/h, 20 ug and 0.1 mrad, carrying that
-uncertainty (service.capture_sim.prior_near).
+from a prior: the truth plus a Gaussian draw of 100 ppm, 0.01 deg/h, 20 ug and 0.1 mrad,
+carrying that uncertainty (service.capture_sim.prior_near; before issue 36 the draw was uniform
+within +-1 sigma, which flattered every held coefficient).
+
+Seeds (issue 36, "evidence that can fail"): the hull detector, the drift test and the gate were
+developed on seed 0 (the old default), and seeds 1 and 2 were run and quoted while doing so
+(:data:`DEV_SEEDS`). The default is seed 10, held out; ``--seeds 10-12`` runs several weeks one
+after the other. Each run says which of its seeds are dev and which held-out. The prior comes
+from its own random stream, so a seed's schedule is the same whatever the prior's draw.
 
 Printed: windows stored (in calm and rough sea), windows that overlap a turn (must be 0), holds
 with a window, drift alarms, jobs and versions (published or not, with the gate's reasons), and
@@ -21,7 +28,8 @@ simulated day.
 
     python benchmarks/bench_vessel.py                 # a week at 10 Hz, about 10 min on 2 cores
     python benchmarks/bench_vessel.py --quick         # one day, replayed as fast as it reads
-    python benchmarks/bench_vessel.py --days 3 --rate 20 --seed 2
+    python benchmarks/bench_vessel.py --days 3 --rate 20 --seeds 11,12
+    python benchmarks/bench_vessel.py --seed 0        # the development seed (not evidence)
 """
 
 from __future__ import annotations
@@ -64,6 +72,11 @@ SEA = SeaState(roll_deg=1.0, roll_period_s=8.0, pitch_deg=0.5, pitch_period_s=6.
 ROUGH_SCALE = 3.0
 #: Odds that the next stretch is rough rather than a berth hold: about one rough stretch a day.
 ROUGH_ODDS = 1 / 30
+#: The seeds the week's method was developed and tuned on (module docstring): never quoted as
+#: held-out evidence.
+DEV_SEEDS = (0, 1, 2)
+#: The default seed: held out.
+DEFAULT_SEED = 10
 #: Section 5 parameter names of the vector terms (the misalignment is a name -> value map).
 _PARAMS = {"scale": ("Kx", "Ky", "Kz"), "bias": ("bx", "by", "bz"),
            "quadratic": ("K2x", "K2y", "K2z")}  # fmt: skip
@@ -254,7 +267,9 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=10.0, help="sample rate, Hz (default 10)")
     ap.add_argument("--speed", default="2000",
                     help="replay speed: N times real time, or max (default 2000)")  # fmt: skip
-    ap.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    ap.add_argument("--seeds", "--seed", dest="seeds", type=parse_seeds, default=[DEFAULT_SEED],
+                    help=f"random seed(s): 10, 10-12 or 10,14 (default {DEFAULT_SEED}, held "
+                         f"out; {', '.join(map(str, DEV_SEEDS))} are the development seeds)")  # fmt: skip
     ap.add_argument("--latitude", type=float, default=45.0, help="deg (default 45)")
     ap.add_argument("--quick", action="store_true", help="one day, replayed at max speed")
     ap.add_argument("--keep", metavar="DIR", help="keep the capture and database in DIR")
@@ -271,13 +286,47 @@ def main() -> int:
     args = ap.parse_args()
     if args.quick:
         args.days, args.speed = 1.0, "max"
-    rng = np.random.default_rng([args.seed, 25])
-    truth = kvh_like_truth(args.seed)
-    prior = prior_near(truth, rng)
+    dev = [s for s in args.seeds if s in DEV_SEEDS]
+    held = [s for s in args.seeds if s not in DEV_SEEDS]
+    print(f"seeds: held-out {', '.join(map(str, held)) or 'none'}; development "
+          f"{', '.join(map(str, dev)) or 'none'} (developed on {', '.join(map(str, DEV_SEEDS))}: "
+          "not evidence)\n")  # fmt: skip
+    summary = []
+    for k, seed in enumerate(args.seeds):
+        folder = Path(args.keep) / f"seed-{seed}" if args.keep and len(args.seeds) > 1 else None
+        summary.append(run_week(args, seed, shipped, stream=k == 0, keep=folder))
+        if args.stream_only:
+            return 0
+    if len(summary) > 1:
+        print("\n| seed | | windows over a turn | drift alarms | versions published | misses |")
+        print("|---|---|---|---|---|---|")
+        for r in summary:
+            print(f"| {r['seed']} | {'dev' if r['seed'] in DEV_SEEDS else 'held-out'} | "
+                  f"{r['overlap']} | {r['alarms']} | {r['published']} | {r['misses']} |")  # fmt: skip
+    return 0
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'10', '10-12' or '10,14' (or a mix) as a list of seeds."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.strip().partition("-")
+        seeds += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return seeds
+
+
+def run_week(args: argparse.Namespace, seed: int, shipped: str, stream: bool,
+             keep: Path | None = None) -> dict:  # fmt: skip
+    """One seed's voyage through the daemon, printed; returns its headline counts."""
+    rng = np.random.default_rng([seed, 25])
+    truth = kvh_like_truth(seed)
+    prior = prior_near(truth, [seed, 25, 1])
     week = make_week(args.days, rng)
     holds = week.kind == "hold"
     rough = week.scale >= ROUGH_SCALE
-    print(f"# A simulated {args.days:g}-day voyage through the daemon ({os.cpu_count()} cores)\n")
+    role = "development seed: not evidence" if seed in DEV_SEEDS else "held-out seed"
+    print(f"# A simulated {args.days:g}-day voyage through the daemon, seed {seed} ({role}; "
+          f"{os.cpu_count()} cores)\n")  # fmt: skip
     print(f"schedule: {holds.sum()} holds ({(holds & rough).sum()} in rough sea, "
           f"{(week.end - week.start)[holds & rough].sum() / 3600:.1f} h), "
           f"{(~holds).sum()} turns; daily peak roll "
@@ -287,14 +336,14 @@ def main() -> int:
           + (" (the shipped default)" if args.method == shipped else f" (ships {shipped!r})"))  # fmt: skip
 
     tmp = tempfile.TemporaryDirectory(prefix="bench_vessel.")
-    folder = Path(args.keep) if args.keep else Path(tmp.name)
+    folder = keep or (Path(args.keep) if args.keep else Path(tmp.name))
     folder.mkdir(parents=True, exist_ok=True)
     for stale in ("recal.db", "recal.db-wal", "recal.db-shm", "coefficients.json"):
         (folder / stale).unlink(missing_ok=True)
     capture, prior_path = folder / "week.bin", folder / "prior.json"
     prior_path.write_text(json.dumps(prior.to_json_dict(), indent=2), encoding="utf-8")
     (folder / "truth.json").write_text(json.dumps(truth.to_json_dict(), indent=2), "utf-8")
-    if args.stream_hours > 0:
+    if stream and args.stream_hours > 0:
         st = stream_cpu_1khz(truth, args.latitude, args.stream_hours, folder)
         share = 100.0 * st["cpu_s"] / st["frames"] * 1000.0
         print(f"per-frame work past the reader at 1 kHz (ingest, hull detector, store; 50-frame "
@@ -303,9 +352,9 @@ def main() -> int:
               f"the reader's 2.4 % (bench_reader_cpu, docs/drivers.md): {share + 2.4:.1f} % of "
               "the 5 % budget (docs/service.md)")  # fmt: skip
         if args.stream_only:
-            return 0
+            return {"seed": seed}
     t0 = time.monotonic()
-    frames = write_capture(truth, week, capture, args.rate, args.latitude, args.seed)
+    frames = write_capture(truth, week, capture, args.rate, args.latitude, seed)
     print(f"simulated {frames:,} frames ({capture.stat().st_size / 1e6:.0f} MB) in "
           f"{time.monotonic() - t0:.0f} s; replaying at speed {args.speed} ...")  # fmt: skip
     r = run_daemon(capture, prior_path, folder, args.rate, args.latitude, args.speed, args.method)
@@ -392,7 +441,8 @@ def main() -> int:
           "replay's pacing and small reads included: not a 1 kHz figure, see the direct "
           "measurement above)")  # fmt: skip
     tmp.cleanup()
-    return 0
+    return {"seed": seed, "overlap": int(overlap.sum()), "alarms": len(alarms),
+            "published": len(published), "misses": misses_total}  # fmt: skip
 
 
 if __name__ == "__main__":
