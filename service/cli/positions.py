@@ -27,6 +27,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from service.cli.ship import add_ship_options, print_lines, read_ship_log
+
 #: Format flags add_kvh_unit_options adds (with their choices), not add_input_options.
 KVH_UNIT_FLAGS = ("--gyro-output", "--gyro-units", "--temp-units")
 _PROGRESS_MIN_BYTES = 16 << 20  # below this a bar would only flicker
@@ -71,6 +73,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     add_kvh_unit_options(p)
     add_detector_options(p)
+    add_ship_options(p)
     p.set_defaults(func=run)
     return p
 
@@ -224,6 +227,7 @@ def run(args: argparse.Namespace) -> int:
         if not (path.parent if str(path.parent) else Path(".")).is_dir():
             raise RecalInputError(f"output folder {path.parent} does not exist")
     recording = open_recording(args)
+    ship = read_ship_log(args)  # --nmea: read (and refused) before anything is detected
     rest = _rest_reference(args)
     motion = getattr(args, "motion", "still")
     if motion == "hull":
@@ -246,6 +250,9 @@ def run(args: argparse.Namespace) -> int:
             kept, reasons = rest_filter(windows, rest)
             report.add_rest_rejections(windows, reasons)
             windows = kept
+    joined = None
+    if ship is not None:  # the underway rule (recal.detect.underway), as the daemon's
+        windows, joined = ship.judge(windows, report, None if rest is None else rest.gyro_scale)
     if report_path:  # before the no-window error: the report shows why there is none
         _write_report(Path(report_path), envelope, report, windows, recording, floor, args)
     if not windows:
@@ -259,6 +266,8 @@ def run(args: argparse.Namespace) -> int:
     # Printed only on success: a failed run prints its one-line error and nothing else.
     for line in recording.notes() + report.summary_lines():
         print(f"recal positions: {line}", file=sys.stderr)
+    if ship is not None:
+        print_lines(ship.summary(len(windows)))
     if motion == "still":
         if rest is None:
             print(
@@ -267,7 +276,7 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         _hint_hull(windows)
-    positions = _write(out, windows, recording.triads)
+    positions = _write(out, windows, recording.triads, ship, joined)
     if _units(args.format) == {"gyro": "deg/h", "accel": "g"}:  # Earth rate, gravity check them
         from recal.detect.plausibility import check_units
 
@@ -505,15 +514,19 @@ def _units(fmt: str) -> dict[str, str]:
     return {"gyro": gyro, "accel": accel}
 
 
-def _write(out: Path, windows, triads: tuple[str, ...]) -> Any:
-    """The positions CSV, atomically (columns of a triad the input lacks are left out); returns
-    the :class:`recal.model.positions.Positions` written."""
+def _write(out: Path, windows, triads: tuple[str, ...], ship=None, joined=None) -> Any:
+    """The positions CSV, atomically (columns of a triad the input lacks are left out; with
+    ``--nmea`` the ship's columns, and the transport rate in the gyro sigma); returns the
+    :class:`recal.model.positions.Positions` written."""
     from recal.detect.windows import windows_to_columns
     from recal.model.positions import Positions
     from service.cli.common import atomic_write
 
     missing = tuple(f"{s}_" for s in ("gyro", "accel") if s not in triads)
-    columns = {k: v for k, v in windows_to_columns(windows).items() if not k.startswith(missing)}
+    columns = windows_to_columns(windows)
+    if ship is not None:
+        columns = ship.columns(columns, joined)
+    columns = {k: v for k, v in columns.items() if not k.startswith(missing)}
     positions = Positions.from_columns(columns, source=str(out))
     atomic_write(out, positions.to_csv_text())
     return positions
