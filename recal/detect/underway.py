@@ -10,7 +10,7 @@ At 1 kn (0.514 m/s) its size is 8.1e-8 rad/s = 0.0166 deg/h, times up to 1 + |ta
 (0.033 deg/h at 45 deg, 0.045 at 60): about the white noise of a 5-minute window of a KVH
 1750-class FOG (ARW 0.012 deg/sqrt(h): 0.046 deg/h through the hull detector's weights). At
 10 kn it is ten times that, larger than the biases a navigation-grade FOG is calibrated to;
-the Coriolis and Eotvos accelerations (2 Omega v: 7.6 ug per knot) and the ship's small speed
+the Coriolis and Eotvos accelerations (2 Omega v: up to 7.7 ug per knot) and the ship's small speed
 and heading changes reach the accelerometers too. So:
 
 * a window whose mean speed over ground exceeds ``max_sog_kn`` (:data:`DEFAULT_MAX_SOG_KN`,

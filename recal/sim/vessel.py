@@ -40,9 +40,9 @@ each sample interval:
 
 and the outputs are the truth model's forward map of the inputs plus white noise
 (:class:`recal.sim.simulate.NoiseSpec` densities). The vessel does not sail: transport rate and
-Coriolis acceleration are zero (a unit under way at constant speed sees the Eotvos effect, about
-75 ug at 5 m/s, which the detector cannot tell from gravity; the berth is where the product
-recalibrates).
+Coriolis acceleration are zero outside ``transit`` segments (a unit under way at constant speed
+sees the Eotvos effect, about 75 ug at 5 m/s, which the detector cannot tell from gravity; the
+berth is where the product recalibrates).
 
 A long voyage is simulated in chunks (:func:`vessel_chunks`), so a week at 100 Hz needs no more
 memory than a chunk; :func:`simulate_vessel` returns a whole recording as a
