@@ -69,6 +69,7 @@ def test_ship_track_sails_the_transit() -> None:
     assert np.all(tr["sog_kn"][t >= 500.0] == 0.0) and np.all(tr["cog_deg"] == 0.0)
 
 
+@pytest.mark.slow
 def test_simulate_writes_the_ships_nmea_alongside(tmp_path, capsys) -> None:
     out, nmea = tmp_path / "b.bin", tmp_path / "b.nmea"
     argv = ["simulate", "--berth", "--holds", "2", "--hold", "130", "--rate", "10", "--transit",

@@ -28,6 +28,8 @@ REASON_TEXT = {
     "swinging": "swinging (mean rate above Earth's rate, about a horizontal axis)",
     "rate_low": "mean rate below Earth's rate (a unit or rate setting, or not at rest)",
     "accelerating": "accelerating (mean specific force is not gravity)",
+    # the ship's sensors (recal.detect.underway)
+    "underway": "under way (the ship's mean speed over ground above the threshold)",
 }
 #: Rejected stretches listed in :attr:`DetectionReport.rejected_stretches` at most (the counts in
 #: ``rejected`` stay complete): a plot needs them, and a noisy recording can have very many.
