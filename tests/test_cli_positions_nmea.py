@@ -99,13 +99,21 @@ def test_a_transit_at_12_kn_is_rejected_as_underway_and_the_berths_keep_their_la
         assert r["sog_kn"] < 0.05 and abs((r["heading_deg"] - heading + 180) % 360 - 180) < 0.1
     lats = sorted({round(r["latitude_deg"], 3) for r in rows})
     assert lats == [LAT, round(LAT + 0.04034, 3)]
-    # a ship at its berth has no net displacement: the gyro sigma is the detector's
+    # a ship at its berth has no net displacement: the gyro sigma is the detector's, grown only
+    # along the vertical by the 1-sigma of the heading creep the log's heading measures (the
+    # window's vertical rate then stays a measurement; without the log it is none:
+    # recal.detect.creep)
     plain = tmp_path / "plain.csv"
     assert main(["positions", str(d / "t.bin"), "--format", "kvh-a", "--rate", "20", "--motion",
                  "hull", "--latitude", str(LAT), "-o", str(plain)]) == 0  # fmt: skip
     by_start = {r["start_s"]: r for r in _rows(plain)}
     for r in rows:
-        assert r["gyro_x_sem"] == pytest.approx(by_start[r["start_s"]]["gyro_x_sem"], rel=1e-9)
+        p = by_start[r["start_s"]]
+        assert r["gyro_x_sem"] == pytest.approx(p["gyro_x_sem"], rel=1e-3)
+        assert r["gyro_z_sem"] >= p["gyro_z_sem"] and p["gyro_vertical"] == 0
+        # the window's mean yaw rate (the berth's yaw swing over the window: up to 2 deg/h) from
+        # the log's heading, as the gyro's vertical excess estimates it without the log
+        assert r.get("gyro_vertical", 1) == 1 and abs(r["creep_dph"] - p["creep_dph"]) < 0.2
     # a threshold above the transit's speed keeps the transit's windows, their gyro sigma grown
     # by the transport rate of 12 kn: 0.2 deg/h x (1 + tan 57.7) = 0.52 deg/h
     fast = tmp_path / "fast.csv"

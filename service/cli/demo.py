@@ -9,7 +9,7 @@ accepted coefficients with the truth. ``--serve`` then keeps the HTTP API up on 
 ``--vessel`` runs the same product on what the service is built for: a FOG bolted to a moored
 hull (:mod:`recal.sim.vessel`): a few berth holds in a small sea (roll, pitch, yaw swing, heave)
 joined by steady heading turns, read with ``[detector] motion = "hull"``, started from a prior
-(the truth within its 1-sigma, as a previous calibration) and published under ``[gate]
+(the truth moved by a Gaussian draw of its 1-sigma, as a previous calibration) and published under ``[gate]
 publish_observable_part``: what the turns show is estimated, the rest held at the prior.
 """
 

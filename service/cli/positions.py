@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
     if motion == "hull":
         if report_path:
             raise RecalInputError("--report is not available with --motion hull yet")
-        windows, report = _detect_hull(recording, rest, args)
+        windows, report = _detect_hull(recording, rest, args, ship)
     else:
         floor = None
         if not _has_thresholds(args):
@@ -406,8 +406,9 @@ def _rest_reference(args: argparse.Namespace):
     return ref.at_unknown_latitude() if ref is not None and given is None else ref
 
 
-def _detect_hull(recording, rest, args: argparse.Namespace):
-    """One pass through the hull detector (recal.detect.hull): quasi-static windows."""
+def _detect_hull(recording, rest, args: argparse.Namespace, ship=None):
+    """One pass through the hull detector (recal.detect.hull): quasi-static windows; with the
+    ship's log (``--nmea``) its heading gives each window's creep (recal.detect.creep)."""
     from recal.detect.hull import HullDetector
     from recal.errors import RecalInputError
 
@@ -420,14 +421,17 @@ def _detect_hull(recording, rest, args: argparse.Namespace):
         raise RecalInputError("--motion hull needs both triads: the gyro sees the hull's motion")
     detector = None
     windows = []
+    first = None
     with _ByteProgress(recording.total_bytes, "positions") as bar:
         for frames in recording.frames(bar.update):
             if detector is None:
                 rate = recording.sample_rate_hz or _rate_of(frames["time_s"])
                 detector = HullDetector(rest, rate_hz=rate)
+                first = float(frames["time_s"][0])
+            psi = None if ship is None else ship.heading_of(frames["time_s"], first)
             windows += detector.feed(
                 frames["time_s"], frames["gyro"], frames["accel"],
-                frames.get("temperature_c"), frames.get("valid"),
+                frames.get("temperature_c"), frames.get("valid"), heading_deg=psi,
             )  # fmt: skip
     if detector is None:
         raise RecalInputError(f"no frames in {recording.source}")

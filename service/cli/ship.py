@@ -117,6 +117,17 @@ class ShipLog:
         scale = 0.0 if gyro_units_per_dph is None else gyro_units_per_dph
         return [windows[i] for i in keep], (ships, underway_rule(ships, self.max_sog_kn, scale))
 
+    def heading_of(self, time_s: Any, first_time_s: float) -> Any:
+        """The ship's true heading at frames of the recording (its ``time_s``; the first frame's
+        ``first_time_s`` is the windows' zero), deg, NaN where the log has none near: the hull
+        detector measures each window's heading creep from it (recal.detect.creep)."""
+        import numpy as np
+
+        from drivers.nmea import heading_at
+
+        t = np.asarray(time_s, dtype=float) - first_time_s - self.offset_s
+        return heading_at(self.log.track, t)
+
     @staticmethod
     def columns(columns: dict, joined: Any) -> dict:
         from recal.detect.underway import ship_columns
