@@ -25,8 +25,9 @@ time scale of the waves and by physics:
 3. **The window's specific force** is the same parabolic-weighted mean of the accelerometer
    outputs, corrected for the second-order loss of a rocking mean (its norm is low by g A^2 / 4,
    76 ug at 1 degree): the gyro's own attitude oscillation gives that correction.
-4. **Uncertainty.** Each mean carries the sensor's white noise through the weights (estimated from
-   the second differences of the samples, which waves barely touch) plus the motion's residual
+4. **Uncertainty.** Each mean carries the sensor's noise through the weights (its long-run
+   variance from block differences of the samples, which a FOG's own low-pass cannot shrink and
+   the waves do not reach: :mod:`recal.detect.window_sem`) plus the motion's residual
    (12 A_rms / (w T^2) per axis, from the window's own oscillation amplitude and frequency), plus,
    for the accelerometer, the centripetal acceleration of an unknown lever arm up to
    ``lever_arm_max_m`` and a tenth of the second-order correction. A wave-contaminated mean never
@@ -47,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from recal.detect.rest import REST_REASONS, RestReference
+from recal.detect.window_sem import weighted_mean_sem
 from recal.detect.windows import Window
 from recal.errors import RecalInputError
 
@@ -262,14 +264,12 @@ def estimate_window(
     f0 = np.linalg.solve(M, f_bar)
     f0, lever_sem = _lever_arm(f, f0, delta, rate_res, dt, cfg)
     accel_mean = (f0 + ref.accel_bias_g) * ref.accel_scale
-    # white noise through the weights, from second differences (var(d2) = 6 sigma^2)
+    # the sensor's noise through the weights: its long-run variance (a filtered FOG's samples
+    # are correlated, so not from second differences) times sum w^2 (recal.detect.window_sem)
     sw2 = float(w @ w)
 
     def white(x: np.ndarray) -> np.ndarray:
-        if n < 4:
-            return np.full(3, np.nan)
-        d2 = np.diff(x, n=2, axis=0)
-        return np.sqrt(np.mean(d2**2, axis=0) / 6.0 * sw2)
+        return weighted_mean_sem(x, sw2, dt)
 
     gyro_white = white(gyro)
     accel_white = white(accel)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from recal.detect.noise import standard_errors as _standard_errors
+from recal.detect.window_sem import static_white_std
 
 # Raw row layout kept in the buffer.
 _T, _G, _A, _TEMP, _VALID, _LOST = 0, slice(1, 4), slice(4, 7), 7, 8, 9
@@ -40,8 +41,11 @@ class _Piece:
 
 def _window_sem(n: int, std: np.ndarray, allan_sq, allan_terms, block: int) -> np.ndarray:
     """(6,) standard errors of one window's means (gyro x y z, accel x y z) from its own
-    samples, correlated noise included (recal.detect.noise)."""
-    return _standard_errors(np.array([n]), std[None], [(allan_sq, allan_terms)], block)[0]
+    samples, correlated noise included (recal.detect.noise). The white level is the per-sample
+    variance unless the first Allan level shows a larger long-run level: a sensor's own low-pass
+    (:func:`recal.detect.window_sem.static_white_std`)."""
+    white = static_white_std(std, allan_sq, allan_terms, block)
+    return _standard_errors(np.array([n]), white[None], [(allan_sq, allan_terms)], block)[0]
 
 
 def _edges(prev: bool, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
