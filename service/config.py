@@ -287,7 +287,7 @@ class DetectorSettings(Section):
 
 
 class NavSettings(Section):
-    """The ship's GNSS and heading over NMEA 0183 (conventions section 12, docs/service.md);
+    """The ship's GNSS and heading over NMEA 0183 (docs/service.md, `[nav]`);
     without ``url`` (no ``[nav]`` section) none are read."""
 
     url: str | None = Field(

@@ -34,6 +34,10 @@ time scale of the waves and by physics:
    gets a still window's sigma.
 5. **Physics.** The corrected means go through the rest check (:mod:`recal.detect.rest`) with
    those standard errors; a window that fails is rejected with its reason.
+6. **Heading creep and anchor swing** (:mod:`recal.detect.creep`): measured from the ship's
+   heading where it is given and taken out of the vertical rate; otherwise the window's vertical
+   rate is no measurement (``gyro_vertical`` False), allowed up to ``max_creep_dph`` by the rest
+   check and left out by the fit. Either way the horizontal rate's averaging loss is divided out.
 
 Everything works on sample arrays (:func:`detect_hull`) or incrementally (:class:`HullDetector`,
 which buffers at most ``max_window_s`` plus the look-ahead). Pure numpy.
@@ -47,6 +51,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from recal.detect.creep import MAX_CREEP_DPH, correct_rate, heading_rate, horizontal_loss
 from recal.detect.rest import REST_REASONS, RestReference
 from recal.detect.window_sem import weighted_mean_sem
 from recal.detect.windows import Window
@@ -75,6 +80,9 @@ class HullConfig:
     max_window_s: float = 900.0
     lever_arm_max_m: float = 10.0
     max_gap_frames: int = 5
+    #: the largest heading creep or anchor swing (deg/h) a window keeps where the ship's heading
+    #: is unknown (recal.detect.creep): its vertical rate is then no measurement
+    max_creep_dph: float = MAX_CREEP_DPH
 
     def __post_init__(self) -> None:
         for name in ("block_s", "turn_window_s", "min_window_s", "max_window_s"):
@@ -209,13 +217,20 @@ def block_states(
 
 # ---- one window's estimate --------------------------------------------------------------------
 def estimate_window(
-    t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, ref: RestReference, cfg: HullConfig
+    t: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    ref: RestReference,
+    cfg: HullConfig,
+    heading_deg: np.ndarray | None = None,
 ) -> tuple:
     """Rate and specific force of one quasi-static window, output units, and their 1-sigma.
 
     Returns gyro mean (3,), accel mean (3,), gyro sem (3,), accel sem (3,), the tilt RMS (rad),
-    the oscillation's effective angular frequency (rad/s), and the motion's parts of the gyro and
-    accel sems (3,) each. ``t`` (n,) s; samples valid.
+    the oscillation's effective angular frequency (rad/s), the motion's parts of the gyro and
+    accel sems (3,) each, and the heading creep (:mod:`recal.detect.creep`): its rate (deg/h,
+    clockwise; NaN unknown) and whether the vertical rate is a measurement (the ship's heading
+    ``heading_deg`` (n,), deg, NaN where unknown, gave the creep). ``t`` (n,) s; samples valid.
     """
     n = len(t)
     dt = float(np.median(np.diff(t))) if n > 1 else 1.0
@@ -264,6 +279,19 @@ def estimate_window(
     f0 = np.linalg.solve(M, f_bar)
     f0, lever_sem = _lever_arm(f, f0, delta, rate_res, dt, cfg)
     accel_mean = (f0 + ref.accel_bias_g) * ref.accel_scale
+    # heading creep: measured from the ship's heading, else estimated from the vertical excess
+    # for the horizontal averaging loss only (the vertical rate is then no measurement)
+    up = f0 / max(float(np.linalg.norm(f0)), 1e-300)
+    w0_dph = w0 / _DPH_TO_RAD_S
+    creep, creep_sd = heading_rate(tc, heading_deg) if heading_deg is not None else (
+        math.nan, math.nan)  # fmt: skip
+    vertical_known = math.isfinite(creep)
+    if not vertical_known:
+        v_e, _ = ref.earth_rate_parts_dph()
+        creep = v_e - float(w0_dph @ up) if math.isfinite(v_e) else math.nan
+    loss = horizontal_loss(tc, w, creep)
+    w0_dph = correct_rate(w0_dph, up, creep, loss, vertical_known)
+    gyro_mean = (w0_dph + ref.gyro_bias_dph) * ref.gyro_scale
     # the sensor's noise through the weights: its long-run variance (a filtered FOG's samples
     # are correlated, so not from second differences) times sum w^2 (recal.detect.window_sem)
     sw2 = float(w @ w)
@@ -294,9 +322,12 @@ def estimate_window(
     accel_resid = _band_residual(f_osc, dt, T, slowest, power=2)
     second = 0.1 * np.abs(f0 - f_bar)
     accel_motion = np.sqrt(accel_resid**2 + lever_sem**2 + second**2) * np.abs(ref.accel_scale)
+    if vertical_known:  # the measured creep's 1-sigma, along up
+        gyro_motion = np.hypot(gyro_motion, np.abs(up) * creep_sd * np.abs(ref.gyro_scale))
     gyro_sem = np.sqrt(gyro_white**2 + gyro_motion**2)
     accel_sem = np.sqrt(accel_white**2 + accel_motion**2)
-    return gyro_mean, accel_mean, gyro_sem, accel_sem, tilt, om, gyro_motion, accel_motion
+    return (gyro_mean, accel_mean, gyro_sem, accel_sem, tilt, om, gyro_motion, accel_motion,
+            creep, vertical_known)  # fmt: skip
 
 
 # ---- the whole recording -----------------------------------------------------------------------
@@ -397,8 +428,13 @@ def detect_hull(
     temperature_c: np.ndarray | None = None,
     valid: np.ndarray | None = None,
     rate_hz: float | None = None,
+    heading_deg: np.ndarray | None = None,
 ) -> tuple[list[HullWindow], HullReport]:
-    """Quasi-static windows of a recording (arrays of frames, output units)."""
+    """Quasi-static windows of a recording (arrays of frames, output units).
+
+    ``heading_deg`` (n,): the ship's true heading at each frame (``[nav]``, NaN where unknown):
+    where a window has it, its heading creep is measured and its vertical rate kept
+    (:mod:`recal.detect.creep`); elsewhere the vertical rate is no measurement."""
     cfg = cfg or HullConfig()
     time_s = np.asarray(time_s, float)
     n = len(time_s)
@@ -436,16 +472,20 @@ def detect_hull(
     cand = []
     for a, b in pieces:  # a loop over windows; each estimate is vectorised over its samples
         sel = np.flatnonzero(ok[a:b]) + a
-        est = estimate_window(time_s[sel], gyro[sel], accel[sel], ref, cfg)
+        psi = None if heading_deg is None else np.asarray(heading_deg, float)[sel]
+        est = estimate_window(time_s[sel], gyro[sel], accel[sel], ref, cfg, psi)
         cand.append((a, b, sel, est))
     if cand:
         g = np.array([c[3][0] for c in cand])
         f = np.array([c[3][1] for c in cand])
         gs = np.array([c[3][2] for c in cand])
         fs = np.array([c[3][3] for c in cand])
-        reasons = ref.judge(g, f, gs, fs)
+        free = np.array([not c[3][9] for c in cand])
+        reasons = ref.judge(
+            g, f, gs, fs, vertical_allowance_dph=np.where(free, cfg.max_creep_dph, 0.0)
+        )
     for (a, b, sel, est), why in zip(cand, reasons if cand else [], strict=True):
-        gm, fm, gsem, fsem, tilt, om, gmot, fmot = est
+        gm, fm, gsem, fsem, tilt, om, gmot, fmot, creep, vertical_known = est
         if why:
             report.rejected[why] += 1
             report.rejected_stretches.append((time_s[a], time_s[b - 1], str(why)))
@@ -475,6 +515,8 @@ def detect_hull(
             gyro_sem=gsem,
             accel_sem=fsem,
             quasi_static=True,
+            gyro_vertical=bool(vertical_known),
+            creep_dph=float(creep),
         )
         out.append(HullWindow(win, gmot, fmot, math.degrees(tilt), 2.0 * math.pi / om))
     report.kept = len(out)
@@ -522,7 +564,10 @@ class HullDetector:
         accel: np.ndarray,
         temperature_c: np.ndarray | None = None,
         valid: np.ndarray | None = None,
+        heading_deg: np.ndarray | None = None,
     ) -> list[HullWindow]:
+        """``heading_deg`` (n,): the ship's true heading per frame, NaN where unknown (as
+        :func:`detect_hull`)."""
         n = len(time_s)
         if n == 0:
             return []
@@ -530,8 +575,9 @@ class HullDetector:
             self._t0 = float(time_s[0])
         temp = np.full(n, np.nan) if temperature_c is None else np.asarray(temperature_c, float)
         ok = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, bool)
+        psi = np.full(n, np.nan) if heading_deg is None else np.asarray(heading_deg, float)
         self._chunks.append((np.asarray(time_s, float), np.asarray(gyro, float),
-                             np.asarray(accel, float), temp, ok))  # fmt: skip
+                             np.asarray(accel, float), temp, ok, psi))  # fmt: skip
         self._buffered += n
         self.report.frames += n
         out: list[HullWindow] = []
@@ -544,8 +590,9 @@ class HullDetector:
         return self._decide(final=True) if self._buffered else []
 
     def _decide(self, final: bool) -> list[HullWindow]:
-        t, g, a, temp, ok = (np.concatenate(x) for x in zip(*self._chunks, strict=True))
-        wins, rep = detect_hull(t, g, a, self.ref, self.cfg, temp, ok, self.rate_hz)
+        t, g, a, temp, ok, psi = (np.concatenate(x) for x in zip(*self._chunks, strict=True))
+        wins, rep = detect_hull(t, g, a, self.ref, self.cfg, temp, ok, self.rate_hz,
+                                psi if np.isfinite(psi).any() else None)  # fmt: skip
         horizon = len(t) if final else len(t) - round(2.0 * self.cfg.turn_window_s * self.rate_hz)
         emitted = [w for w in wins if w.window.end_index < horizon]
         if final:
@@ -587,7 +634,7 @@ class HullDetector:
                                       hw.tilt_rms_deg, hw.period_s))  # fmt: skip
         self.report.kept += len(shifted)
         # keep the undecided tail
-        keep = (t[cut:], g[cut:], a[cut:], temp[cut:], ok[cut:])
+        keep = (t[cut:], g[cut:], a[cut:], temp[cut:], ok[cut:], psi[cut:])
         self._chunks = [keep] if len(keep[0]) else []
         self._buffered = len(keep[0])
         self._offset += cut

@@ -95,6 +95,14 @@ class SeaState:
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     components: int = 3
     period_spread: float = 0.15
+    #: heading creep at a berth or anchor, deg/h (mooring lines stretching, tide turning the
+    #: ship): a steady rate about the vertical, which the yaw swing above never has (it averages
+    #: to zero)
+    creep_dph: float = 0.0
+    #: the swing round a single anchor: heading amplitude (deg) of a sinusoid of
+    #: ``anchor_period_s`` (a tide, 12.42 h), zero at the start and turning fastest there
+    anchor_swing_deg: float = 0.0
+    anchor_period_s: float = 12.42 * 3600.0
 
     @classmethod
     def calm(cls) -> SeaState:
@@ -108,7 +116,8 @@ class SeaState:
         return cls(roll_deg=roll_deg, pitch_deg=roll_deg / 2.0, yaw_swing_deg=yaw, **kw)
 
     def __post_init__(self) -> None:
-        for name in ("roll_period_s", "pitch_period_s", "yaw_period_s", "heave_period_s"):
+        for name in ("roll_period_s", "pitch_period_s", "yaw_period_s", "heave_period_s",
+                     "anchor_period_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise RecalInputError(f"sea state {name} must be a positive number, not {v}")
@@ -465,6 +474,12 @@ class _Schedule:
             out[name + "_dot"] = env * d1 + env_dot * v
             out[name + "_ddot"] = env * d2 + 2.0 * env_dot * d1  # the envelope's curvature omitted
         head, head_dot = self.heading(t, seg)
+        sea = self.spec.sea
+        if sea.creep_dph or sea.anchor_swing_deg:  # slow heading changes at a berth or anchor
+            c = math.radians(sea.creep_dph) / 3600.0
+            a, w = math.radians(sea.anchor_swing_deg), 2.0 * math.pi / sea.anchor_period_s
+            head = head + c * t + a * np.sin(w * t)
+            head_dot = head_dot + c + a * w * np.cos(w * t)
         out["heading"] = head + out["yaw"]
         out["heading_dot"] = head_dot + out["yaw_dot"]
         out["C_vb"], out["w_vb"] = self.mount(t, seg)

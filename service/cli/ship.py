@@ -1,6 +1,6 @@
 """``recal positions ... --nmea LOG``: the ship's sensors from a log, joined to the windows.
 
-The log holds the sentences the daemon reads from ``[nav] url`` (conventions section 12), lines
+The log holds the sentences the daemon reads from ``[nav] url`` (docs/service.md, `[nav]`), lines
 as received. An NMEA line carries no time of the IMU's clock, so the log's first sentence is
 taken at the recording's first frame; when both carry UTC (the recording's given by
 ``--utc-start``, the log's by an RMC date and time) they are aligned by it instead. Each window
@@ -25,7 +25,7 @@ MAX_SOG_KN = 1.0
 
 
 def add_ship_options(p: argparse.ArgumentParser) -> None:
-    s = p.add_argument_group("the ship's sensors (NMEA 0183; conventions section 12)")
+    s = p.add_argument_group("the ship's sensors (NMEA 0183; docs/service.md)")
     s.add_argument(
         "--nmea",
         metavar="LOG",

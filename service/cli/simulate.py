@@ -351,7 +351,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--nmea",
         metavar="OUT.nmea",
         help="also write the ship's own sensors as NMEA 0183 lines (GGA, RMC, VTG from a GNSS, "
-        "HDT from a gyrocompass; conventions section 12) at --nmea-rate, from the simulated "
+        "HDT from a gyrocompass; docs/service.md) at --nmea-rate, from the simulated "
         "position, speed, course and heading; its first sentence is the recording's first "
         "sample (read it with recal positions ... --nmea OUT.nmea)",
     )

@@ -1,5 +1,5 @@
 """Columns latitude_deg, sog_kn, heading_deg of positions: the ship's state over a window
-(schema version 5, conventions section 12).
+(schema version 5; docs/reference.md#positions).
 
 Where the ship's sensors (``[nav]``, NMEA 0183) cover a window, the daemon stores the mean
 latitude, speed over ground and true heading with it; NULL where they did not (every window
