@@ -422,9 +422,10 @@ def heading_at(track: NavTrack, times_s: np.ndarray, max_gap_s: float = MAX_GAP_
         return out
     unwrapped = np.degrees(np.unwrap(np.radians(psi)))
     val = np.interp(t, th, unwrapped) % 360.0
-    k = np.searchsorted(th, t)
-    before = np.where(k > 0, t - th[np.maximum(k - 1, 0)], np.inf)
-    after = np.where(k < th.size, th[np.minimum(k, th.size - 1)] - t, np.inf)
+    kb = np.searchsorted(th, t, side="right")  # th[kb - 1] <= t
+    ka = np.searchsorted(th, t, side="left")  # th[ka] >= t
+    before = np.where(kb > 0, t - th[np.maximum(kb - 1, 0)], np.inf)
+    after = np.where(ka < th.size, th[np.minimum(ka, th.size - 1)] - t, np.inf)
     covered = (np.minimum(before, after) <= max_gap_s) & (before + after <= 2 * max_gap_s)
     out[covered] = val[covered]
     return out

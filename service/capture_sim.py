@@ -14,6 +14,7 @@ the decoded ``time_s`` equals the session's ``time_s`` frame for frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -268,3 +269,33 @@ def _rows(*cols: np.ndarray) -> np.ndarray:
     """(k, len(cols)) int64 rows sorted by the first column."""
     out = np.column_stack([np.asarray(c, dtype=np.int64) for c in cols]).reshape(-1, len(cols))
     return out[np.argsort(out[:, 0], kind="stable")]
+
+
+def ship_nmea(
+    spec: Any,
+    latitude_deg: float,
+    longitude_deg: float = 0.0,
+    height_m: float = 0.0,
+    seed: int = 0,
+    rate_hz: float = 1.0,
+    utc_start: Any = None,
+) -> bytes:
+    """The ship's own sensors over a simulated vessel recording (recal.sim.vessel.ship_track of
+    ``spec`` and ``seed``) as NMEA 0183 lines: an epoch of GGA, RMC, VTG and HDT every
+    1 / ``rate_hz`` s, the first at the first sample, dated from ``utc_start`` (a UTC datetime;
+    default 2026-01-01), written by pynmeagps's message classes (drivers.nmea.epoch_sentences)."""
+    import datetime as dt
+
+    from drivers.nmea import epoch_sentences
+    from recal.sim.vessel import ship_track
+
+    if utc_start is None:
+        utc_start = dt.datetime(2026, 1, 1, tzinfo=dt.UTC)
+    times = np.arange(0.0, spec.duration_s, 1.0 / rate_hz)
+    tr = ship_track(spec, times, latitude_deg, longitude_deg, height_m, seed)
+    cols = [tr[k] for k in ("latitude_deg", "longitude_deg", "height_m", "sog_kn", "cog_deg",
+                            "heading_deg")]  # fmt: skip
+    out = bytearray()
+    for k, t in enumerate(times.tolist()):  # a loop over fixes (1 to 10 a second), not samples
+        out += epoch_sentences(utc_start + dt.timedelta(seconds=t), *(float(c[k]) for c in cols))
+    return bytes(out)

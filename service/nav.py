@@ -63,6 +63,12 @@ class DeviceClock:
             if rel >= last + CLOCK_STEP_S or (not self._pairs and rel >= 0.0):
                 self._pairs.append((rel, float(h[-1])))
 
+    @property
+    def first_time_s(self) -> float | None:
+        """The device time of the first frame observed, None before any."""
+        with self._lock:
+            return self._t0
+
     def hosts(self, time_s: np.ndarray) -> np.ndarray | None:
         """The host times of frames at device times ``time_s`` (as the batches give them, not
         relative to the first frame), vectorised; None before any frame."""
@@ -111,18 +117,31 @@ class ShipSensors:
         self.settings = settings
         self.track = NavTrack(max_age_s=TRACK_AGE_S)
         self.clock = DeviceClock()
+        #: ``[nav] log``: a logged talker beside a replayed capture, on the capture's own clock
+        #: (its first sentence at the first frame): windows join it by device time
+        self.on_device_clock = getattr(settings, "log", None) is not None
         self.max_sog_kn = float(settings.max_sog_kn)
         #: called (in the reader's thread) with each newest latitude the sentences give
         self.on_latitude = on_latitude
         self.started = False
         self.reader = None
-        if reader:
+        if self.on_device_clock:
+            from pathlib import Path
+
+            from drivers.nmea import read_log
+
+            self.track = read_log(Path(settings.log).read_bytes(), source=settings.log).track
+        elif reader:
             self.reader = NavReader(settings.url, self.track, on_fixes=self._fixes,
                                     baudrate=settings.baudrate, clock=clock)  # fmt: skip
 
     def start(self) -> None:
         if self.reader is not None and not self.started:
             self.reader.start()
+        if self.on_device_clock and not self.started and self.on_latitude is not None:
+            latest = self.track.latest_position()  # a log's latitude is known from the start
+            if latest is not None:
+                self.on_latitude(latest[1])
         self.started = True
 
     def stop(self) -> None:
@@ -150,7 +169,7 @@ class ShipSensors:
         NaN where the track has none near; None when no heading has come at all."""
         from drivers.nmea import heading_at
 
-        hosts = self.clock.hosts(time_s)
+        hosts = self._track_times(time_s)
         if hosts is None:
             return None
         psi = heading_at(self.track, hosts)
@@ -161,9 +180,20 @@ class ShipSensors:
         cover it."""
         out = []
         for w in windows:
+            if self.on_device_clock:  # window times count from the first frame, as the log
+                out.append(self.track.window(w.start_s, w.end_s))
+                continue
             h0, h1 = self.clock.host(w.start_s), self.clock.host(w.end_s)
             out.append(None if h0 is None or h1 is None else self.track.window(h0, h1))
         return out
+
+    def _track_times(self, time_s: np.ndarray) -> np.ndarray | None:
+        """Frame device times (as the batches give them) on the track's clock: host times, or
+        for a log, seconds from the first frame."""
+        if not self.on_device_clock:
+            return self.clock.hosts(time_s)
+        t0 = self.clock.first_time_s
+        return None if t0 is None else np.asarray(time_s, dtype=float) - t0
 
     @property
     def alive(self) -> bool:
@@ -171,7 +201,8 @@ class ShipSensors:
 
     def health(self) -> dict[str, Any]:
         """The ``nav`` block of ``/health``."""
-        out: dict[str, Any] = {"url": self.settings.url, "max_sog_kn": self.max_sog_kn,
+        out: dict[str, Any] = {"url": self.settings.url, "log": getattr(self.settings, "log", None),
+                               "max_sog_kn": self.max_sog_kn,
                                "fixes": self.track.total,
                                "latitude_deg": self.latitude_deg()}  # fmt: skip
         if self.reader is not None:

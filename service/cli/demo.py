@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
         DetectorSettings,
         DeviceSettings,
         GateSettings,
+        NavSettings,
         SchedulerSettings,
         Settings,
         SiteSettings,
@@ -107,7 +108,9 @@ def run(args: argparse.Namespace) -> int:
 
     capture = folder / "session.bin"
     if args.vessel:
-        data, rate, truth, prior, turns = _simulate_vessel(args, capture)
+        data, rate, truth, prior, turns, ship = _simulate_vessel(args, capture)
+        nav_log = folder / "ship.nmea"  # the ship's GNSS and gyrocompass beside the capture
+        atomic_write(nav_log, ship)
         prior_path = folder / "prior.json"
         atomic_write(prior_path, json.dumps(prior.to_json_dict(), indent=2) + "\n")
         detector = DetectorSettings(motion="hull")
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         gate = GateSettings(publish_observable_part=True)
     else:
         data, rate, truth = _simulate_lab(args, capture)
-        prior_path, turns = None, None
+        prior_path, turns, nav_log = None, None, None
         detector = DetectorSettings(init_still_s=30.0, min_duration_s=5.0, edge_trim_s=1.0)
         scheduler = SchedulerSettings(min_positions=14, min_new_positions=5, sensor="both")
         gate = GateSettings()
@@ -127,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
         publish_path=str(folder / "coefficients.json"),
         prior_path=None if prior_path is None else str(prior_path),
         device=DeviceSettings(url=f"replay://{capture}?speed=max&rate={rate:g}", rate_hz=rate),
-        site=SiteSettings(latitude_deg=args.latitude),
+        # the vessel's latitude comes from its own GNSS ([nav]), as on board
+        site=SiteSettings(latitude_deg=None if nav_log else args.latitude),
+        nav=NavSettings(log=str(nav_log)) if nav_log else NavSettings(),
         detector=detector,
         scheduler=scheduler,
         gate=gate,
@@ -135,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
     )
     service = build_service(settings)
     t0 = time.monotonic()
+    if service.nav is not None:
+        service.nav.start()
     service.reader.start()
     size = len(data)
     while service.reader.health().counters.bytes_in < size:
@@ -186,10 +193,11 @@ def _simulate_lab(args: argparse.Namespace, capture: Path) -> tuple[bytes, float
 
 def _simulate_vessel(
     args: argparse.Namespace, capture: Path
-) -> tuple[bytes, float, object, object, list[tuple[float, float]]]:
-    """The berth session as a KVH capture: (bytes, rate, truth, prior, turn spans in s)."""
+) -> tuple[bytes, float, object, object, list[tuple[float, float]], bytes]:
+    """The berth session as a KVH capture: (bytes, rate, truth, prior, turn spans in s, the
+    ship's NMEA sentences beside it at 1 Hz)."""
     from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
-    from service.capture_sim import kvh_like_truth, prior_near, session_to_kvh
+    from service.capture_sim import kvh_like_truth, prior_near, session_to_kvh, ship_nmea
     from service.cli.common import atomic_write
 
     rate = VESSEL_RATE_HZ
@@ -212,7 +220,10 @@ def _simulate_vessel(
          f"roll {sea.roll_deg:g} deg, pitch {sea.pitch_deg:g} deg, yaw swing "
          f"{sea.yaw_swing_deg:g} deg, heave {sea.heave_m:g} m; {len(rec.session):,} KVH "
          f"Format-A frames ({spec.duration_s:.0f} s at {rate:g} Hz) -> {capture}")  # fmt: skip
-    return data, rate, truth, prior, turns
+    ship = ship_nmea(spec, args.latitude, seed=args.seed)
+    _say("recal demo: and the ship's GNSS and gyrocompass beside it (NMEA 0183 GGA, RMC, VTG, "
+         "HDT at 1 Hz): the daemon's [nav] log, its latitude and heading")  # fmt: skip
+    return data, rate, truth, prior, turns, ship
 
 
 def _print_summary(service, truth) -> None:

@@ -833,25 +833,12 @@ def _nmea_start(args: argparse.Namespace):
 
 
 def _nmea_log(spec, args: argparse.Namespace, utc_start) -> bytes:
-    """The ship's sensors over the recording (recal.sim.vessel.ship_track) as NMEA 0183 lines,
-    an epoch of GGA, RMC, VTG and HDT every 1 / --nmea-rate s, the first at the first sample,
-    written by pynmeagps's message classes (drivers.nmea.epoch_sentences)."""
-    import datetime as dt
+    """The ship's sensors over the recording as NMEA 0183 lines at --nmea-rate
+    (service.capture_sim.ship_nmea)."""
+    from service.capture_sim import ship_nmea
 
-    import numpy as np
-
-    from drivers.nmea import epoch_sentences
-    from recal.sim.vessel import ship_track
-
-    times = np.arange(0.0, spec.duration_s, 1.0 / args.nmea_rate)
-    tr = ship_track(spec, times, args.latitude, args.longitude, args.height, args.seed)
-    cols = [tr[k] for k in ("latitude_deg", "longitude_deg", "height_m", "sog_kn", "cog_deg",
-                            "heading_deg")]  # fmt: skip
-    out = bytearray()
-    for k, t in enumerate(times.tolist()):  # a loop over fixes (1 to 10 a second), not samples
-        utc = utc_start + dt.timedelta(seconds=t)
-        out += epoch_sentences(utc, *(float(c[k]) for c in cols))
-    return bytes(out)
+    return ship_nmea(spec, args.latitude, args.longitude, args.height, args.seed,
+                     args.nmea_rate, utc_start)  # fmt: skip
 
 
 def _schedule_csv(spec) -> str:

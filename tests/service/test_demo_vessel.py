@@ -29,5 +29,18 @@ def test_demo_vessel_runs_the_hull_fixed_product(tmp_path, capsys):
     assert max(abs(z) for z in zs) < 3.5, out
     assert any(not c.endswith("h") for c in cells)  # something was estimated
     assert "navigation: gyrocompass heading error" in out
-    for name in ("truth.json", "prior.json", "session.bin"):
+    for name in ("truth.json", "prior.json", "session.bin", "ship.nmea"):
         assert (folder / name).is_file()
+    # the ship's own sensors ([nav] log beside the replayed capture): every window stored at the
+    # GNSS latitude, its heading creep measured from the gyrocompass (its vertical rate kept)
+    from service.store import Store
+
+    store = Store(f"sqlite:///{folder / 'recal.db'}")
+    try:
+        positions, _ = store.positions()
+    finally:
+        store.close()
+    cols = positions.columns
+    assert abs(cols["latitude_deg"] - 57.7).max() < 1e-4, cols["latitude_deg"]
+    assert (cols["sog_kn"] < 0.05).all() and "creep_dph" in cols
+    assert "gyro_vertical" not in cols or (cols["gyro_vertical"] != 0).all()

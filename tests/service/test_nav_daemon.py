@@ -262,3 +262,40 @@ def test_hull_mode_without_nav_or_latitude_exits_2_naming_both(tmp_path, capsys)
     for extra in ('[nav]\nurl = "udp://:10110"\n', "[site]\nlatitude_deg = 57.7\n"):
         config.write_text('[detector]\nmotion = "hull"\n' + extra)
         assert load_settings(config).detector.motion == "hull"
+
+
+def test_a_logged_talker_replays_on_the_captures_clock(tmp_path) -> None:
+    """``[nav] log`` (a replayed capture's logged talker): a missing file or both sources are
+    refused; windows join the log by their own times (from the first frame), whatever the
+    replay's speed, and the frames' heading comes from it too."""
+    from pydantic import ValidationError
+
+    from service.config import NavSettings
+    from service.nav import ShipSensors
+
+    with pytest.raises(ValidationError, match="is not a file"):
+        NavSettings(log=str(tmp_path / "none.nmea"))
+    log = tmp_path / "ship.nmea"
+    log.write_bytes(b"".join(_epoch(k) for k in range(600)))
+    with pytest.raises(ValidationError, match="not both"):
+        NavSettings(log=str(log), url="udp://127.0.0.1:0")
+    nav = ShipSensors(NavSettings(log=str(log)))
+    assert nav.reader is None and nav.on_device_clock
+    seen = []
+    nav.on_latitude = seen.append
+    nav.start()
+    assert seen == [pytest.approx(SHIP_LAT)]
+
+    class Batch:  # the frames' device times 1000 s on, read at any host time
+        time_s = np.arange(1000.0, 1600.0, 0.5)
+        host_time_s = np.full(len(time_s), 5.0)
+
+    nav.observe(Batch)
+
+    class W:
+        start_s, end_s = 100.0, 400.0
+
+    (ship,) = nav.over([W])
+    assert ship.latitude_deg == pytest.approx(SHIP_LAT) and ship.heading_deg == pytest.approx(123.4)
+    psi = nav.heading_of(Batch.time_s)
+    assert np.allclose(psi[Batch.time_s < 1599.0], 123.4)
