@@ -744,3 +744,18 @@ def _concat(chunks: list[VesselChunk]) -> VesselChunk:
     return VesselChunk(*(np.concatenate([getattr(c, f) for c in chunks]) for f in (
         "time_s", "gyro_out", "accel_out", "temperature_c", "gyro_in_dph", "accel_in_g", "C_nb",
         "segment")))  # fmt: skip
+
+
+def random_hull_unit(rng: np.random.Generator) -> CoefficientSet:
+    """A navigation-grade unit in deg/h and g for hull simulations: scale factors within 500 ppm
+    of 1, gyro biases within 1 deg/h, accel biases within 1 mg, misalignments within 0.3 mrad
+    (uniform draws from ``rng``, in that order), no quadratic term."""
+    return CoefficientSet({
+        "gyro.scale": 1.0 + rng.uniform(-5e-4, 5e-4, 3),
+        "gyro.bias": rng.uniform(-1.0, 1.0, 3),
+        "gyro.misalignment": rng.uniform(-3e-4, 3e-4, 6),
+        "accel.scale": 1.0 + rng.uniform(-5e-4, 5e-4, 3),
+        "accel.bias": rng.uniform(-1e-3, 1e-3, 3),
+        "accel.misalignment": rng.uniform(-3e-4, 3e-4, 6),
+        "accel.quadratic": np.zeros(3),
+    })  # fmt: skip

@@ -21,7 +21,7 @@ from recal.detect.windows import windows_to_columns
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+from recal.sim.vessel import SeaState, VesselSpec, random_hull_unit, simulate_vessel
 from recal.solve.calibrate import CalibrationOptions, calibrate
 
 RATE_HZ = 20.0
@@ -33,15 +33,7 @@ SIGMA = {"gyro.scale": 3e-4, "gyro.bias": 0.1, "accel.scale": 3e-4, "accel.bias"
 
 
 def _truth(rng: np.random.Generator) -> CoefficientSet:
-    return CoefficientSet({
-        "gyro.scale": 1.0 + rng.uniform(-5e-4, 5e-4, 3),
-        "gyro.bias": rng.uniform(-1.0, 1.0, 3),
-        "gyro.misalignment": rng.uniform(-3e-4, 3e-4, 6),
-        "accel.scale": 1.0 + rng.uniform(-5e-4, 5e-4, 3),
-        "accel.bias": rng.uniform(-1e-3, 1e-3, 3),
-        "accel.misalignment": rng.uniform(-3e-4, 3e-4, 6),
-        "accel.quadratic": np.zeros(3),
-    })  # fmt: skip
+    return random_hull_unit(rng)
 
 
 def _prior(truth: CoefficientSet, rng: np.random.Generator) -> CoefficientSet:

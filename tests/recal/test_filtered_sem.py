@@ -34,7 +34,14 @@ from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import sample_context
 from recal.sim.simulate import NoiseSpec, truth_model
-from recal.sim.vessel import OutputFilter, SeaState, VesselSpec, simulate_vessel, vessel_chunks
+from recal.sim.vessel import (
+    OutputFilter,
+    SeaState,
+    VesselSpec,
+    random_hull_unit,
+    simulate_vessel,
+    vessel_chunks,
+)
 
 LAT = 45.0
 RATE = 1000.0
@@ -46,16 +53,7 @@ ACCEL_SIGMA = KVH.vrw_ug_rt_hz * 1e-6 * math.sqrt(RATE)
 
 def _unit(seed: int) -> CoefficientSet:
     """A KVH-like unit in deg/h and g: scale within 500 ppm, biases within 1 deg/h and 1 mg."""
-    rng = np.random.default_rng([seed, 36, 4])
-    return CoefficientSet({
-        "gyro.scale": 1.0 + rng.uniform(-5e-4, 5e-4, 3),
-        "gyro.bias": rng.uniform(-1.0, 1.0, 3),
-        "gyro.misalignment": rng.uniform(-3e-4, 3e-4, 6),
-        "accel.scale": 1.0 + rng.uniform(-5e-4, 5e-4, 3),
-        "accel.bias": rng.uniform(-1e-3, 1e-3, 3),
-        "accel.misalignment": rng.uniform(-3e-4, 3e-4, 6),
-        "accel.quadratic": np.zeros(3),
-    })  # fmt: skip
+    return random_hull_unit(np.random.default_rng([seed, 36, 4]))
 
 
 def _old_sem(x: np.ndarray, sum_w2: float) -> np.ndarray:
