@@ -72,31 +72,26 @@ class DeviceClock:
     def hosts(self, time_s: np.ndarray) -> np.ndarray | None:
         """The host times of frames at device times ``time_s`` (as the batches give them, not
         relative to the first frame), vectorised; None before any frame."""
+        t0 = self.first_time_s
+        return None if t0 is None else self._hosts(np.asarray(time_s, dtype=float) - t0)
+
+    def _hosts(self, rel: np.ndarray) -> np.ndarray | None:
+        """Host times of device times ``rel`` (s from the first frame): linear between pairs,
+        on at 1 s per s past either end; None before any frame."""
         with self._lock:
-            if not self._pairs or self._t0 is None:
+            if not self._pairs:
                 return None
-            t0 = self._t0
             dev = np.array([p[0] for p in self._pairs])
             host = np.array([p[1] for p in self._pairs])
-        rel = np.asarray(time_s, dtype=float) - t0
         out = np.interp(rel, dev, host)
-        # past either end: on at 1 s per s (the map's slope there)
         out = np.where(rel > dev[-1], host[-1] + (rel - dev[-1]), out)
         return np.where(rel < dev[0], host[0] - (dev[0] - rel), out)
 
     def host(self, device_s: float) -> float | None:
         """The host time of device time ``device_s`` (s from the first frame), None before any
         frame."""
-        with self._lock:
-            if not self._pairs:
-                return None
-            dev = np.array([p[0] for p in self._pairs])
-            host = np.array([p[1] for p in self._pairs])
-        if device_s >= dev[-1]:
-            return float(host[-1] + (device_s - dev[-1]))
-        if device_s <= dev[0]:
-            return float(host[0] - (dev[0] - device_s))
-        return float(np.interp(device_s, dev, host))
+        out = self._hosts(np.array([float(device_s)]))
+        return None if out is None else float(out[0])
 
 
 class ShipSensors:

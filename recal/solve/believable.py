@@ -95,8 +95,9 @@ def unbelievable(
     idx = [i for t in CHECKED if t in slices for i in range(layout.size)[slices[t]]]
     if not np.all(np.isfinite(theta)):
         return f"{names[int(np.flatnonzero(~np.isfinite(theta))[0])]} is not finite"
+    bounds = physical_bounds(layout, theta0, references, blind_gyro)
     for i in idx:
-        term, sensor = names[i].rsplit(".", 1)[0], names[i].split(".", 1)[0]
+        term = names[i].rsplit(".", 1)[0]
         v, v0, s = float(theta[i]), float(theta0[i]), float(sd[i])
         if term.endswith(".scale"):
             ratio = v / v0 if v0 != 0 else np.inf
@@ -110,10 +111,7 @@ def unbelievable(
                     f"{names[i]} = {v:.6g} with a 1-sigma of {100 * s / abs(v):.3g} % (estimated)"
                 )
             continue
-        ref = references[sensor]
-        if sensor == "gyro" and blind_gyro:
-            ref = 3.0 * DEFAULT_PRIOR_SIGMA["mems"]["gyro.bias"]
-        bound = max(ref, 2.0 * abs(v0))
+        bound = float(bounds[i])
         if abs(v) > bound:
             return (
                 f"{names[i]} = {v:.6g} is beyond {bound:.4g}, the magnitude its triad measures "
