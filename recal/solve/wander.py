@@ -139,11 +139,14 @@ class TriadWander:
 @dataclass(frozen=True)
 class WanderModel:
     """Bias wander of each triad between windows (sensor -> :class:`TriadWander`), and where
-    it came from ("estimated from the residuals", "given", ...)."""
+    it came from ("estimated from the residuals", "given", ...). ``unproven``: the triads
+    carried although their test did not keep them (recal.solve.wander_fit.carry_unproven):
+    in the covariance, never claimed as wander."""
 
     triads: Mapping[str, TriadWander] = field(default_factory=dict)
     source: str = "given"
     notes: tuple[str, ...] = ()
+    unproven: frozenset[str] = frozenset()
 
     @property
     def empty(self) -> bool:
@@ -155,6 +158,7 @@ class WanderModel:
             out[s] = {
                 "sigma": [float(v) for v in t.sigma],
                 "tau_s": [float(v) if math.isfinite(v) else None for v in t.tau_s],
+                **({"significant": False} if s in self.unproven else {}),
             }
         if self.notes:
             out["notes"] = list(self.notes)
@@ -166,11 +170,13 @@ class WanderModel:
         "tau_s"}, output units and s; a null tau is infinite)."""
         if not isinstance(data, Mapping):
             raise RecalInputError("a wander model must be a JSON object")
-        triads = {}
+        triads, unproven = {}, set()
         for s in ("gyro", "accel"):
             block = data.get(s)
             if block is None:
                 continue
+            if isinstance(block, Mapping) and block.get("significant") is False:
+                unproven.add(s)
             try:
                 tau = [math.inf if v is None else float(v) for v in block["tau_s"]]
                 triads[s] = TriadWander(np.array(block["sigma"], float), np.array(tau))
@@ -178,7 +184,8 @@ class WanderModel:
                 raise RecalInputError(
                     f"wander model, {s}: needs 'sigma' and 'tau_s' ({exc})"
                 ) from exc
-        return cls(triads, str(data.get("source", source)))
+        notes = tuple(str(n) for n in data.get("notes") or ())
+        return cls(triads, str(data.get("source", source)), notes, frozenset(unproven))
 
 
 def window_times(columns: Mapping[str, np.ndarray], M: int) -> np.ndarray | None:

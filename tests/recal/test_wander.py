@@ -72,18 +72,32 @@ def test_wander_between_windows_keeps_the_sigmas_honest() -> None:
     assert np.mean(z_none < 3.0) < np.mean(z_auto < 3.0)
 
 
-def test_no_wander_changes_nothing_most_of_the_time() -> None:
-    found = 0
+def test_no_wander_is_claimed_most_of_the_time() -> None:
+    """Without wander the test keeps none in 5 of 6 sessions. A triad whose likelihood still rose
+    is carried at its estimate, unclaimed (its JSON says significant false, the note says none
+    is shown): the estimate moves by less than its sigma, and nothing changes where none rose."""
+    claimed = 0
     for seed in range(300, 306):
         pos = _session(seed, wander=False)
         plain = calibrate(pos, CalibrationOptions(latitude_deg=45.0, method="lm"))
         auto = calibrate(pos, CalibrationOptions(latitude_deg=45.0, method="lm", wander="auto"))
-        if auto.noise_model["wander"] is None:
+        tests = auto.noise_model["wander_test"]
+        block = auto.noise_model["wander"]
+        if any(t["significant"] for t in tests):
+            claimed += 1
+            continue
+        if block is None:
+            assert all(t["gain_2lnL"] <= 0 or t["sigma"] == 0 for t in tests)
             np.testing.assert_array_equal(auto.theta, plain.theta)
-            assert all(not t["significant"] for t in auto.noise_model["wander_test"])
-        else:
-            found += 1
-    assert found <= 1
+            continue
+        carried = [s for s in ("gyro", "accel") if s in block]
+        assert carried and all(block[s]["significant"] is False for s in carried)
+        assert not any("share a bias wander" in n for n in auto.notes)
+        assert any("cannot rule one out" in n for n in auto.notes)
+        shift = np.abs(auto.theta - plain.theta) / np.sqrt(np.diag(plain.covariance))
+        assert shift.max() < 1.0
+        assert WanderModel.from_json_dict(block).unproven == frozenset(carried)
+    assert claimed <= 1
 
 
 def test_a_short_session_is_not_searched_for_wander() -> None:
