@@ -6,6 +6,7 @@ import contextlib
 import signal
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from service.fleet.config import ShoreSettings
@@ -25,9 +26,12 @@ def open_store(settings: ShoreSettings) -> Any:
     return store
 
 
-def make_server(settings: ShoreSettings, store: Any, log_level: str = "info") -> Any:
+def make_server(
+    settings: ShoreSettings, store: Any, log_level: str = "info", reanalysis: Path | None = None
+) -> Any:
     """The uvicorn server of the shore API (not started). SIGINT and SIGTERM make it finish
-    the requests under way and return normally (uvicorn would re-raise them)."""
+    the requests under way and return normally (uvicorn would re-raise them). ``reanalysis``:
+    where ``recal fleet reanalyse`` keeps its JSON (the dashboard's re-analysis page)."""
     import uvicorn
 
     from service.fleet.api import create_app
@@ -46,8 +50,10 @@ def make_server(settings: ShoreSettings, store: Any, log_level: str = "info") ->
                 for sig, handler in previous.items():
                     signal.signal(sig, handler)
 
+    app = create_app(store, settings.api)
+    app.state.reanalysis_path = reanalysis
     config = uvicorn.Config(
-        create_app(store, settings.api),
+        app,
         host=settings.api.host,
         port=settings.api.port,
         log_level=log_level,
@@ -57,13 +63,13 @@ def make_server(settings: ShoreSettings, store: Any, log_level: str = "info") ->
     return Server(config)
 
 
-def serve(settings: ShoreSettings, log_level: str = "info") -> int:
+def serve(settings: ShoreSettings, log_level: str = "info", reanalysis: Path | None = None) -> int:
     """Serve until SIGINT or SIGTERM; the exit code. A database that cannot be used raises
     :class:`service.db.StoreError`, a port that cannot be bound a one-line input error."""
     from recal.errors import RecalInputError
 
     store = open_store(settings)
-    server = make_server(settings, store, log_level)
+    server = make_server(settings, store, log_level, reanalysis)
     try:
         server.run()
     except SystemExit as exc:  # uvicorn's answer to a bind failure
