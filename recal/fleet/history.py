@@ -1,10 +1,13 @@
-"""Accepted versions of many units as flat arrays, and the changes between consecutive ones.
+"""Versions of many units as flat arrays, and the changes between consecutive ones.
 
-A :class:`VersionTable` holds every accepted version of every unit of one model, one row per
-version, sorted by unit then time: the unit's index, the time in months of service, the
-coefficients by flat name (``"gyro.scale.Kx"``, the conventions' names) and their 1-sigma (NaN
-where the version held or lacked a coefficient). :meth:`VersionTable.changes` takes the
-differences between consecutive versions of the same unit in one vectorised step.
+A :class:`VersionTable` holds the versions of every unit of one model, one row per version,
+sorted by unit then time: the unit's index, the time in months of service, the coefficients by
+flat name (``"gyro.scale.Kx"``, the conventions' names), their 1-sigma (NaN where the version
+held or lacked a coefficient) and whether the vessel's gate accepted it (``accepted``). The
+rejected ones belong in it too (issue 37): the gate rejects large jumps, so the accepted
+versions alone are a censored sample of the ageing (recal.fleet.sequence says why every
+version whose estimate is sound is used). :meth:`VersionTable.changes` takes the differences
+between consecutive versions of the same unit in one vectorised step.
 
 Scale factors age in proportion to their value (``relative``): their changes and sigmas are
 divided by the earlier version's value, as the terms' ``relative_typical`` says.
@@ -14,7 +17,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -54,7 +56,7 @@ class Changes:
 
 @dataclass(frozen=True)
 class VersionTable:
-    """Accepted versions of the units of one model (rows sorted by unit, then time)."""
+    """Versions of the units of one model (rows sorted by unit, then time)."""
 
     names: tuple[str, ...]
     units: tuple[str, ...]
@@ -62,6 +64,8 @@ class VersionTable:
     months: np.ndarray  # (V,) time of the version, months of service from any fixed origin
     values: np.ndarray  # (V, P) coefficients
     sigma: np.ndarray  # (V, P) their 1-sigma, NaN where held or unknown
+    #: (V,) bool: the vessel's gate accepted the version (None: every one, as before issue 37)
+    accepted: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         v, p = len(self.unit), len(self.names)
@@ -70,9 +74,27 @@ class VersionTable:
         order = np.lexsort((self.months, self.unit))
         if np.any(order != np.arange(v)):
             raise ValueError("VersionTable: rows must be sorted by unit, then time")
+        accepted = np.ones(v, bool) if self.accepted is None else np.asarray(self.accepted, bool)
+        if accepted.shape != (v,):
+            raise ValueError(f"VersionTable: {v} accepted flags expected")
+        object.__setattr__(self, "accepted", accepted)
+
+    def accepted_only(self) -> VersionTable:
+        """The accepted versions alone (what the fleet prior learnt from before issue 37)."""
+        keep = self.accepted
+        return VersionTable(self.names, self.units, self.unit[keep], self.months[keep],
+                            self.values[keep], self.sigma[keep], self.accepted[keep])  # fmt: skip
+
+    def without(self, units: Sequence[str]) -> VersionTable:
+        """The versions of every unit but ``units``."""
+        drop = np.isin(np.asarray(self.units, dtype=object), list(units))
+        keep = ~drop[self.unit]
+        return VersionTable(self.names, self.units, self.unit[keep], self.months[keep],
+                            self.values[keep], self.sigma[keep], self.accepted[keep])  # fmt: skip
 
     def changes(self) -> Changes:
-        """Differences of consecutive versions of each unit (vectorised over all units)."""
+        """Differences of consecutive versions of each unit (vectorised over all units): of
+        every row, accepted or not (:meth:`accepted_only` first for the accepted ones')."""
         same = self.unit[1:] == self.unit[:-1]
         a, b = np.flatnonzero(same), np.flatnonzero(same) + 1
         rel = np.array([is_relative(n) for n in self.names])
@@ -89,51 +111,57 @@ class VersionTable:
     def from_histories(
         cls,
         names: Sequence[str],
-        histories: Mapping[str, tuple[Any, Any, Any]],
+        histories: Mapping[str, tuple[Any, ...]],
     ) -> VersionTable:
-        """From ``{unit: (months (n,), values (n, P), sigma (n, P))}`` (any order in time)."""
+        """From ``{unit: (months (n,), values (n, P), sigma (n, P)[, accepted (n,)])}`` (any
+        order in time; without ``accepted`` every version counts as accepted)."""
         units = tuple(histories)
-        parts = [tuple(np.asarray(x, float) for x in histories[u]) for u in units]
+        parts = [tuple(np.asarray(x, float) for x in histories[u][:3]) for u in units]
+        flags = [np.asarray(histories[u][3], bool) if len(histories[u]) > 3
+                 else np.ones(len(parts[i][0]), bool) for i, u in enumerate(units)]  # fmt: skip
         counts = np.array([len(p[0]) for p in parts], dtype=int)
         unit = np.repeat(np.arange(len(units)), counts)
         months = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
         values = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, len(names)))
         sigma = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, len(names)))
+        accepted = np.concatenate(flags) if flags else np.zeros(0, bool)
         order = np.lexsort((months, unit))
-        return cls(tuple(names), units, unit[order], months[order], values[order], sigma[order])
+        return cls(tuple(names), units, unit[order], months[order], values[order], sigma[order],
+                   accepted[order])  # fmt: skip
 
     @classmethod
     def from_documents(
         cls,
         names: Sequence[str],
-        versions: Mapping[str, Sequence[tuple[datetime, Mapping[str, Any]]]],
+        versions: Mapping[str, Sequence[tuple[Any, ...]]],
     ) -> VersionTable:
-        """From each unit's accepted versions as the shore holds them: (time, the document a
-        vessel's ``GET /coefficients/{version}`` returns), read by the conventions' names."""
+        """From each unit's versions as the shore holds them: (time, the document a vessel's
+        ``GET /coefficients/{version}`` returns[, accepted]), read by the conventions' names
+        (without ``accepted``: an accepted version)."""
         histories = {}
         for unit, rows in versions.items():
-            months = [t.timestamp() / 86400.0 / MONTH_DAYS for t, _ in rows]
-            values = [_flat(doc.get("coefficients") or {}, names) for _, doc in rows]
-            sigma = [_flat(doc.get("uncertainty") or {}, names) for _, doc in rows]
+            months = [row[0].timestamp() / 86400.0 / MONTH_DAYS for row in rows]
+            values = [_flat(row[1].get("coefficients") or {}, names) for row in rows]
+            sigma = [_flat(row[1].get("uncertainty") or {}, names) for row in rows]
             histories[unit] = (months, np.reshape(values, (-1, len(names))),
-                               np.reshape(sigma, (-1, len(names))))  # fmt: skip
+                               np.reshape(sigma, (-1, len(names))), _accepted(rows))  # fmt: skip
         return cls.from_histories(names, histories)
 
     @classmethod
     def from_flat(
         cls,
         names: Sequence[str],
-        versions: Mapping[str, Sequence[tuple[datetime, Mapping[str, Any]]]],
+        versions: Mapping[str, Sequence[tuple[Any, ...]]],
     ) -> VersionTable:
-        """From each unit's accepted versions as (time, :func:`flat_version` of the document):
-        the same table as :meth:`from_documents` of the documents, without them."""
+        """From each unit's versions as (time, :func:`flat_version` of the document[,
+        accepted]): the same table as :meth:`from_documents` of the documents, without them."""
         histories = {}
         for unit, rows in versions.items():
-            months = [t.timestamp() / 86400.0 / MONTH_DAYS for t, _ in rows]
-            values = [_by_name(flat.get("coefficients"), names) for _, flat in rows]
-            sigma = [_by_name(flat.get("uncertainty"), names) for _, flat in rows]
+            months = [row[0].timestamp() / 86400.0 / MONTH_DAYS for row in rows]
+            values = [_by_name(row[1].get("coefficients"), names) for row in rows]
+            sigma = [_by_name(row[1].get("uncertainty"), names) for row in rows]
             histories[unit] = (months, np.reshape(values, (-1, len(names))),
-                               np.reshape(sigma, (-1, len(names))))  # fmt: skip
+                               np.reshape(sigma, (-1, len(names))), _accepted(rows))  # fmt: skip
         return cls.from_histories(names, histories)
 
 
@@ -147,6 +175,11 @@ def flat_version(document: Mapping[str, Any], names: Sequence[str]) -> dict[str,
         flat = _flat(found if isinstance(found, Mapping) else {}, names)
         out[section] = {n: v for n, v in zip(names, flat, strict=True) if np.isfinite(v)}
     return out
+
+
+def _accepted(rows: Sequence[tuple[Any, ...]]) -> list[bool]:
+    """The optional third item of each (time, document[, accepted]) row (default: accepted)."""
+    return [bool(row[2]) if len(row) > 2 else True for row in rows]
 
 
 def _by_name(section: Any, names: Sequence[str]) -> list[float]:

@@ -39,6 +39,9 @@ class CoefficientAgeing:
     relative: bool
     units: int  # units behind the figure
     changes: int  # changes (pairs of consecutive versions) behind it
+    #: of those changes, how many end in a version the vessel's gate rejected (issue 37: they
+    #: are used, as the accepted ones are; absent from files before it: 0)
+    rejected: int = 0
 
 
 @dataclass(frozen=True)
@@ -113,6 +116,7 @@ class FleetPrior:
                     "relative": c.relative,
                     "units": c.units,
                     "changes": c.changes,
+                    "rejected": c.rejected,
                 }
                 for n, c in self.coefficients.items()
             },  # fmt: skip
@@ -182,7 +186,8 @@ def _ageing(c: Mapping[str, Any]) -> CoefficientAgeing:
         raise ValueError(f"a rate must be >= 0, not {rate}")
     sd = c.get("rate_sigma")
     return CoefficientAgeing(rate, math.nan if sd is None else float(sd), bool(c["relative"]),
-                             int(c["units"]), int(c["changes"]))  # fmt: skip
+                             int(c["units"]), int(c["changes"]),
+                             int(c.get("rejected", 0)))  # fmt: skip
 
 
 def _num(x: float) -> float | None:

@@ -1,12 +1,18 @@
-"""The fleet prior of each model, computed on shore from the stored accepted versions.
+"""The fleet prior of each model, computed on shore from the stored versions.
 
 :func:`recal.fleet.fleet_prior` does the numerics; this module feeds it the shore's accepted
-versions' coefficients and 1-sigma by the conventions' flat names of the seed terms, as ingest
+versions, and those the vessels' gate rejected for a jump alone (issue 37: the gate censors the
+largest changes, so the accepted ones alone give a rate biased low; recal.fleet.sequence says
+why every sound version is used and how), with their ``accepted`` flag, and their
+coefficients and 1-sigma by the conventions' flat names of the seed terms, as ingest
 kept them beside each document (``fleet_versions.flat``, :func:`recal.fleet.history.flat_version`,
 migration 0006; :meth:`recal.fleet.VersionTable.from_flat`), never the 30 kB documents, and keeps every prior it computed in ``fleet_priors``. A prior's ``version``
 is raised only when its inputs changed: the inputs are digested per model as (unit, accepted
 versions stored, the newest's shore row id) -- versions are stored once and never changed, so
-the digest changes exactly when an accepted version arrives or a unit changes model. Asking
+the digest changes exactly when an accepted version arrives or a unit changes model. A rejected
+version alone does not make the prior stale: it enters at the model's next recompute, when any
+of its units' next accepted version arrives (a rejected version would otherwise raise the
+prior's version even when it is one the prior leaves out). Asking
 again with the same inputs answers the stored prior (a process cache spares the database even
 that), so a dashboard refresh never recomputes.
 
@@ -25,13 +31,14 @@ import functools
 import hashlib
 import json
 import logging
+import re
 import threading
 from collections import defaultdict
 from collections.abc import Iterable
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import case, func, select
 from sqlalchemy.exc import IntegrityError
 
 from service.db import StoreError
@@ -41,6 +48,23 @@ log = logging.getLogger(__name__)
 
 #: Units of no registered model are grouped under this name in the overview (no prior).
 NO_MODEL = None
+#: The reasons service/gate.py gives for a jump beyond ``max_change_sigma``: one line per
+#: coefficient ("gyro.scale.Kx moved 7.2 sigma from version 3 (limit 6...)") and a summary
+#: ("4 more coefficients moved beyond 6 sigma").
+_JUMP = re.compile(r"\S+ moved \S+ sigma from version |\d+ more coefficients moved beyond ")
+
+
+def learns_from(accepted: bool, reasons: Any) -> bool:
+    """Whether the fleet prior learns from a version: an accepted one, or one the gate rejected
+    for jumps alone (every reason a jump line). A version rejected for anything else (residuals,
+    observability, a scale's sigma, navigation, unconfirmed effects), or without reasons, is left
+    out: its estimate is not trusted, and leaving it out depends on no coefficient's value
+    (recal.fleet.sequence)."""
+    if accepted:
+        return True
+    if not isinstance(reasons, list) or not reasons:
+        return False
+    return all(isinstance(r, str) and _JUMP.match(r) for r in reasons)
 
 
 def coefficient_names() -> list[str]:
@@ -227,25 +251,37 @@ class FleetPriors:
         previous: dict[str, tuple[str, dict[str, Any], int] | None],
         digests: dict[str, str],
     ) -> dict[str, dict[str, Any]]:
-        """Compute and store the priors of ``models`` from their accepted versions (one query
-        for the versions, one transaction for the new rows)."""
+        """Compute and store the priors of ``models`` from their versions (:func:`learns_from`;
+        one query for the versions, one transaction for the new rows)."""
         from recal.fleet.compute import fleet_prior
         from recal.fleet.history import VersionTable, flat_version
 
         names = coefficient_names()
+        # the reasons only of the rejected versions (an accepted one's are notes)
+        reasons = case((VersionRow.accepted.is_(False), VersionRow.data["reasons"]), else_=None)
         query = (
-            select(UnitRow.model, UnitRow.serial, VersionRow.at, VersionRow.id, VersionRow.flat)
+            select(
+                UnitRow.model,
+                UnitRow.serial,
+                VersionRow.at,
+                VersionRow.id,
+                VersionRow.flat,
+                VersionRow.accepted,
+                reasons,
+            )  # fmt: skip
             .join(UnitRow, UnitRow.id == VersionRow.unit_id)
-            .where(VersionRow.accepted.is_(True), UnitRow.model.in_(models))
-            .order_by(UnitRow.model, UnitRow.serial, VersionRow.at)
+            .where(UnitRow.model.in_(models))
+            .order_by(UnitRow.model, UnitRow.serial, VersionRow.at, VersionRow.id)
         )
         rows: dict[str, dict[str, list[Any]]] = {m: defaultdict(list) for m in models}
         missing: dict[int, tuple[str, str, int]] = {}  # rows stored without it (not by ingest)
         with self._store._tx() as s:
-            for model, serial, at, row_id, flat in s.execute(query):
+            for model, serial, at, row_id, flat, accepted, why in s.execute(query):
+                if not learns_from(bool(accepted), _json(why)):
+                    continue
                 if flat is None:
                     missing[row_id] = (model, serial, len(rows[model][serial]))
-                rows[model][serial].append((_utc(at), flat))
+                rows[model][serial].append((_utc(at), flat, bool(accepted)))
             if missing:  # their documents: one more query, only then
                 doc = VersionRow.data["document"]
                 found = s.execute(
@@ -257,15 +293,15 @@ class FleetPriors:
                     model, serial, k = missing[row_id]
                     document = {"coefficients": _json(coefficients),
                                 "uncertainty": _json(uncertainty)}  # fmt: skip
-                    rows[model][serial][k] = (rows[model][serial][k][0],
-                                              flat_version(document, names))  # fmt: skip
+                    time, _, accepted = rows[model][serial][k]
+                    rows[model][serial][k] = (time, flat_version(document, names), accepted)
         now = datetime.now(UTC)
         out: dict[str, dict[str, Any]] = {}
         new_rows = []
         for model in models:
             table = VersionTable.from_flat(names, rows[model])
             if len(table.changes()) == 0:
-                out[model] = {}  # no unit with two accepted versions yet: no prior
+                out[model] = {}  # no unit with two versions to learn from yet: no prior
                 continue
             old = previous.get(model)
             version = 1 if old is None else old[2] + 1
@@ -273,7 +309,8 @@ class FleetPriors:
                                 created_at=now.strftime("%Y-%m-%dT%H:%M:%SZ"),
                                 metadata={"source": "recal fleet shore",
                                           "units": len(table.units),
-                                          "versions": len(table.unit)})  # fmt: skip
+                                          "versions": len(table.unit),
+                                          "rejected": int((~table.accepted).sum())})  # fmt: skip
             out[model] = prior.to_json_dict()
             new_rows.append(PriorRow(model=model, version=version, created_at=now,
                                      inputs=digests[model], document=out[model]))  # fmt: skip
