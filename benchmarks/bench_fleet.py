@@ -378,7 +378,7 @@ def ingest_store(store: FleetStore, fleet: Fleet, units: list[UnitPlan]) -> Inge
             gz = gzip.compress(raw, 6)
             t0 = time.perf_counter()
             batch = read_batch(gz, "gzip", 4 * 2**20)
-            stored, _dup = store.ingest(unit, batch, len(gz))
+            stored, *_ = store.ingest(unit, batch, len(gz))
             fig.seconds += time.perf_counter() - t0
             fig.rows += stored
             fig.batches += 1

@@ -1,4 +1,5 @@
-"""Fleet sync over a bad link, with kill -9 on either side: every row arrives exactly once.
+"""Fleet sync over a bad link, with kill -9 on either side or a rebuilt vessel database: every
+row arrives exactly once, with its content.
 
 Each run registers a new unit on one shore service (``recal fleet serve`` on PostgreSQL at
 127.0.0.1:5432, a throwaway database), and starts that unit's vessel daemon (``recal serve`` on
@@ -7,20 +8,29 @@ proxy (service.fault_proxy) in front of the shore. The proxy cuts requests mid-b
 after the shore has committed (the lost acknowledgement), delays every chunk, and takes the
 link down for seconds at a time, all from the run's seed. While the vessel replays and syncs,
 the run kills (SIGKILL, the whole process group) the vessel, the shore or both at a random
-moment, waits, and restarts what it killed. When the replay is over it stops the vessel
-(SIGTERM), drains what the outbox still holds with ``recal sync`` (the shutdown's own events
-included), and compares, per kind (session, window, slew, version, event):
+moment, waits, and restarts what it killed. The ``rebuild`` victim is the vessel's disk swap:
+the vessel is killed, its database, spool and published file deleted, and it starts afresh (a
+new database instance whose row ids start at 1 again, the replay from its start). When the
+replay is over it stops the vessel (SIGTERM), drains what the outbox still holds with
+``recal sync`` (the shutdown's own events included), and compares, per kind (session, window,
+slew, version, event), by (database instance, vessel row id):
 
-* on the vessel: every row id of the unit's database;
-* on the shore: every (unit, vessel row id) stored, and the count of rows (a row stored twice
-  would count twice).
+* on the vessel: every row of the unit's database, as the wire carries it (its content digest,
+  service.fleet.batch.content_digest); for a rebuilt vessel also the rows of the deleted
+  database the shore had acknowledged before the kill (those still in its outbox are lost with
+  the disk, and not counted);
+* on the shore: every row stored for the unit, its content digest, how often each key is
+  stored (a row stored twice would count twice), and the unit's conflicts.
 
-A run passes when both are the same set with no row twice and the outbox is empty. The table
-at the end gives, per victim, the runs, rows compared, the proxy's cuts and outages, and the
+missing: a vessel row not on shore; changed: on shore with other content; extra: on shore
+only; doubled: a key stored twice; conflicts: rows the shore kept apart (a key received with
+other content). A run passes when all are 0 and the outbox is empty. The table at the end gives,
+per victim, the runs, rows compared, these counts, the proxy's cuts and outages, and the
 failures; the process exits 1 on any failure.
 
     python benchmarks/fault_sync.py --runs 50
     python benchmarks/fault_sync.py --runs 3 --seed 7        # a quick look
+    python benchmarks/fault_sync.py --runs 4 --victims rebuild
 """
 
 from __future__ import annotations
@@ -64,7 +74,7 @@ KINDS = {
     "calibrations": ("version", "fleet_versions"),
     "events": ("event", "fleet_events"),
 }
-VICTIMS = ("vessel", "shore", "both")
+VICTIMS = ("vessel", "shore", "both", "rebuild")
 ADMIN_TOKEN = "fault-sync-admin-" + secrets.token_hex(8)
 
 
@@ -75,7 +85,11 @@ class Tally:
     missing: int = 0
     extra: int = 0
     doubled: int = 0
+    changed: int = 0
+    conflicts: int = 0
     backlog: int = 0
+    #: rows of deleted databases (rebuild) the shore had acknowledged, compared too
+    before_rebuild: int = 0
     cuts: Counter = field(default_factory=Counter)
     outages: int = 0
     failures: list[str] = field(default_factory=list)
@@ -145,20 +159,28 @@ class Shore:
             raise RuntimeError(f"add-unit {serial}: {done.stderr.strip()}")
         return done.stdout.strip()
 
-    def rows(self, serial: str) -> dict[str, Counter]:
-        """Per vessel table: how often each vessel row id is stored for ``serial``."""
+    def rows(self, serial: str) -> tuple[dict[str, Counter], dict[str, dict], int]:
+        """Per vessel table: how often each (instance, vessel row id) is stored for
+        ``serial``, and the content digest of each; the unit's conflicts."""
         import psycopg
 
-        out: dict[str, Counter] = {}
+        from service.fleet.batch import content_digest
+
+        counts: dict[str, Counter] = {}
+        digests: dict[str, dict] = {}
         conninfo = self.url.set(drivername="postgresql").render_as_string(hide_password=False)
         with psycopg.connect(conninfo) as conn:
             for table, (_, shore_table) in KINDS.items():
                 got = conn.execute(
-                    f"SELECT r.vessel_id FROM {shore_table} r JOIN fleet_units u "  # noqa: S608
-                    "ON u.id = r.unit_id WHERE u.serial = %s", (serial,)
+                    f"SELECT r.instance, r.vessel_id, r.data FROM {shore_table} r "  # noqa: S608
+                    "JOIN fleet_units u ON u.id = r.unit_id WHERE u.serial = %s", (serial,)
                 ).fetchall()  # fmt: skip
-                out[table] = Counter(v for (v,) in got)
-        return out
+                counts[table] = Counter((i, v) for i, v, _ in got)
+                digests[table] = {(i, v): content_digest(d) for i, v, d in got}
+            (conflicts,) = conn.execute(
+                "SELECT n_conflicts FROM fleet_units WHERE serial = %s", (serial,)
+            ).fetchone()
+        return counts, digests, conflicts
 
     def drop(self) -> None:
         from psycopg import sql
@@ -234,12 +256,50 @@ class Vessel:
         )  # fmt: skip
         return done.returncode, done.stderr.strip()
 
-    def rows(self) -> tuple[dict[str, set[int]], int]:
-        """Per vessel table its row ids; the outbox rows left."""
+    def rows(self, acknowledged: bool = False) -> tuple[dict[str, dict], int]:
+        """Per vessel table its rows, by (instance, row id): the content digest of each as the
+        wire carries it (``acknowledged``: only those the shore acknowledged, out of the
+        outbox); the outbox rows left."""
+        from service.db import Store
+        from service.fleet.batch import content_digest
+        from service.store.outbox import OutboxEntry
+        from service.sync.batch import wire_row
+
         with contextlib.closing(sqlite3.connect(self.db)) as conn:
-            out = {t: {r for (r,) in conn.execute(f"SELECT id FROM {t}")} for t in KINDS}  # noqa: S608
-            (left,) = conn.execute("SELECT count(*) FROM outbox").fetchone()
-        return out, left
+            ids = {t: [r for (r,) in conn.execute(f"SELECT id FROM {t}")] for t in KINDS}  # noqa: S608
+            waiting = set(conn.execute("SELECT kind, ref_id FROM outbox").fetchall())
+        store = Store(f"sqlite:///{self.db}")
+        try:
+            instance = store.instance()
+            entries = [OutboxEntry(0, KINDS[t][0], i) for t, found in ids.items() for i in found
+                       if not (acknowledged and (KINDS[t][0], i) in waiting)]  # fmt: skip
+            found = store.outbox_rows(entries)
+        finally:
+            store.close()
+        tables = {kind: table for table, (kind, _) in KINDS.items()}
+        out: dict[str, dict] = {t: {} for t in KINDS}
+        for (kind, ident), stored in found.items():
+            digest = content_digest(wire_row(kind, ident, stored)["data"])
+            out[tables[kind]][(instance, ident)] = digest
+        return out, len(waiting)
+
+    def instance(self) -> str:
+        from service.db import Store
+
+        store = Store(f"sqlite:///{self.db}")
+        try:
+            return store.instance()
+        finally:
+            store.close()
+
+    def wipe(self) -> None:
+        """The disk swap: the database (and its WAL), the spool and the published file gone."""
+        import shutil
+
+        for path in self.folder.glob("recal.db*"):
+            path.unlink()
+        shutil.rmtree(self.folder / "spool", ignore_errors=True)
+        (self.folder / "coefficients.json").unlink(missing_ok=True)
 
 
 def one_run(
@@ -266,13 +326,21 @@ def one_run(
         vessel = Vessel(root / serial, capture, serial, token, proxy.url, speed)
         vessel.start()
         time.sleep(rng.uniform(1.0, 1.0 + 210.0 / speed))  # mid-replay, mid-sync
-        for side in ("vessel", "shore") if victim == "both" else (victim,):
+        sides = {"both": ("vessel", "shore"), "rebuild": ("vessel",)}.get(victim, (victim,))
+        for side in sides:
             part = vessel if side == "vessel" else shore
             tally.failures += [f"run {run}: {side}: {m}" for m in part.kill()]
+        before: dict[str, dict] = {t: {} for t in KINDS}
+        gone: set[str] = set()  # the deleted database's instance
+        if victim == "rebuild":  # what the shore acknowledged of the database about to go
+            before, _ = vessel.rows(acknowledged=True)
+            gone.add(vessel.instance())
+            tally.before_rebuild += sum(len(r) for r in before.values())
+            vessel.wipe()
         time.sleep(rng.uniform(0.5, 3.0))
         if victim in ("shore", "both"):
             shore.start()
-        if victim in ("vessel", "both"):
+        if victim in ("vessel", "both", "rebuild"):
             vessel.start()  # the replay starts again: a second session, more rows
         if not vessel.replayed(180):
             tally.failures.append(f"run {run}: the vessel's replay did not finish in 180 s")
@@ -285,18 +353,26 @@ def one_run(
             tally.failures.append(f"run {run}: recal sync exited {code}: {err[-300:]}")
         tally.cuts.update(proxy.stats.cuts)
     have, left = vessel.rows()
-    stored = shore.rows(serial)
+    counts, digests, conflicts = shore.rows(serial)
     tally.runs += 1
     tally.backlog += left
-    for table, ids in have.items():
-        got = stored[table]
-        missing = ids - set(got)
-        extra = set(got) - ids
-        doubled = sum(n - 1 for n in got.values() if n > 1)
-        tally.rows += len(ids)
+    tally.conflicts += conflicts
+    if conflicts:
+        tally.failures.append(f"run {run}: {conflicts} conflict(s) kept on shore")
+    for table, mine in have.items():
+        mine = {**before[table], **mine}  # a rebuilt vessel: both databases' rows
+        got = digests[table]
+        missing = set(mine) - set(got)
+        # rows of the deleted database still in its outbox are lost with it: not "extra"
+        lost = {k for k in set(got) - set(mine) if k[0] in gone}
+        extra = set(got) - set(mine) - lost
+        changed = [k for k in set(mine) & set(got) if mine[k] != got[k]]
+        doubled = sum(n - 1 for n in counts[table].values() if n > 1)
+        tally.rows += len(mine)
         tally.missing += len(missing)
         tally.extra += len(extra)
         tally.doubled += doubled
+        tally.changed += len(changed)
         kind = KINDS[table][0]
         if missing:
             tally.failures.append(f"run {run}: {len(missing)} {kind} row(s) never arrived")
@@ -304,6 +380,8 @@ def one_run(
             tally.failures.append(f"run {run}: {len(extra)} {kind} row(s) on shore only")
         if doubled:
             tally.failures.append(f"run {run}: {doubled} {kind} row(s) stored twice")
+        if changed:
+            tally.failures.append(f"run {run}: {len(changed)} {kind} row(s) with other content")
     if left:
         tally.failures.append(f"run {run}: {left} outbox row(s) left")
 
@@ -313,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--victims", default=",".join(VICTIMS),
-                    help="what is killed, in turn (default vessel,shore,both)")  # fmt: skip
+                    help="what is killed, in turn (default vessel,shore,both,rebuild: the "
+                    "vessel killed and its database deleted)")  # fmt: skip
     ap.add_argument("--speed", type=float, default=SPEED,
                     help=f"replay speed of the 6-minute capture (default {SPEED:g})")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="also print the totals as one JSON line")
@@ -352,21 +431,28 @@ def main(argv: list[str] | None = None) -> int:
         f"\n{args.runs} runs in {time.monotonic() - t0:.0f} s; proxy: drop_request 0.15, "
         "drop_response 0.15, delay 0.01 s a chunk, link down about 1.5 s every 5 s"
     )
-    print(f"{'kill -9':8s} {'runs':>5s} {'rows':>7s} {'missing':>8s} {'extra':>6s} "
-          f"{'doubled':>8s} {'backlog':>8s} {'cut req':>8s} {'cut ans':>8s} {'outages':>8s} "
-          f"{'failures':>9s}")  # fmt: skip
+    print(f"{'kill -9':8s} {'runs':>5s} {'rows':>7s} {'rebuilt':>8s} {'missing':>8s} "
+          f"{'changed':>8s} {'extra':>6s} {'doubled':>8s} {'conflict':>8s} {'backlog':>8s} "
+          f"{'cut req':>8s} {'cut ans':>8s} {'outages':>8s} {'failures':>9s}")  # fmt: skip
     failures = 0
     for victim, t in tallies.items():
         failures += len(t.failures)
-        print(f"{victim:8s} {t.runs:5d} {t.rows:7d} {t.missing:8d} {t.extra:6d} {t.doubled:8d} "
-              f"{t.backlog:8d} {t.cuts['request']:8d} {t.cuts['response']:8d} {t.outages:8d} "
+        print(f"{victim:8s} {t.runs:5d} {t.rows:7d} {t.before_rebuild:8d} {t.missing:8d} "
+              f"{t.changed:8d} {t.extra:6d} {t.doubled:8d} {t.conflicts:8d} {t.backlog:8d} "
+              f"{t.cuts['request']:8d} {t.cuts['response']:8d} {t.outages:8d} "
               f"{len(t.failures):9d}")  # fmt: skip
+    print(
+        "rows: compared by (database instance, row id) and content; rebuilt: of them, rows "
+        "of deleted databases the shore had acknowledged"
+    )
     for t in tallies.values():
         for f in t.failures:
             print(f"  FAIL {f}")
     if args.json:
         print(json.dumps({v: {"runs": t.runs, "rows": t.rows, "missing": t.missing,
-                              "extra": t.extra, "doubled": t.doubled, "backlog": t.backlog,
+                              "extra": t.extra, "doubled": t.doubled, "changed": t.changed,
+                              "conflicts": t.conflicts, "before_rebuild": t.before_rebuild,
+                              "backlog": t.backlog,
                               "cuts": dict(t.cuts), "failures": t.failures}
                           for v, t in tallies.items()}))  # fmt: skip
     with contextlib.suppress(OSError):

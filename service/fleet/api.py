@@ -1,16 +1,19 @@
 """The shore's HTTP API (FastAPI): ``POST /fleet/ingest`` and the fleet's REST reads.
 
 Every route takes ``Authorization: Bearer TOKEN`` (docs/fleet.md#shore-rest): the
-administrator's token (``[api] token`` of shore.toml) reads every unit; a unit's token (from
-``recal fleet add-unit``) writes and reads its own unit only, and another unit answers 404 as
-if absent. No token or an unknown one: 401.
+administrator's token (``[api] token_file``, ``token_sha256`` or ``RECAL_API__TOKEN`` of the
+shore's settings) reads every unit; a unit's token (from ``recal fleet add-unit``) writes and
+reads its own unit only, and another unit answers 404 as if absent: nothing of another unit
+reaches it (its serial, rows, statistics, whether it is an outlier; tests/fleet/test_isolation.py
+walks every route). No token or an unknown one: 401. Every answer but 200 is documented with
+its body (``ErrorOut``, or FastAPI's validation error for a bad query parameter).
 """
 
 from __future__ import annotations
 
 import contextlib
-import hmac
 import logging
+import re
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -20,11 +23,11 @@ from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, BeforeValidator, Field
 
 from recal import __version__
 from service.db import StoreError
-from service.fleet.batch import BatchError, read_batch
+from service.fleet.batch import FORMAT, INSTANCE, MAX_ID, MAX_NAME, BatchError, read_batch
 from service.fleet.config import ShoreApiSettings
 from service.fleet.overview import overview as fleet_overview
 from service.fleet.priors import FleetPriors
@@ -48,8 +51,33 @@ class UnitOut(BaseModel):
     model: str | None
     versions: int = Field(description="calibration versions stored")
     windows: int = Field(description="static windows stored")
-    current_version: int | None = Field(description="the newest accepted version, or null")
+    current_version: int | None = Field(
+        description="the newest accepted version by creation time (a rebuilt vessel's numbers "
+        "start at 1 again), or null"
+    )
+    current_instance: str | None = Field(
+        default=None, description="the vessel database instance of current_version"
+    )
     last_contact: str | None = Field(description="last batch received, ISO 8601 UTC, or null")
+    instance: str | None = Field(
+        default=None,
+        description='the vessel database instance of the latest batch ("": a vessel that '
+        "sends none), or null",
+    )
+    conflicts: int = Field(
+        default=0, description="rows received whose key was stored with other content (kept)"
+    )
+
+
+class ConflictOut(BaseModel):
+    kind: str
+    instance: str = Field(description="the vessel database instance of the batch")
+    id: int = Field(description="the vessel's row id")
+    at: str
+    received_at: str
+    digest: str = Field(description="sha256 of the row's content, canonical JSON")
+    stored_digest: str = Field(description="that of the row stored under the same key")
+    data: dict[str, Any] = Field(description="the row as it was received, whole")
 
 
 class LinkDayOut(BaseModel):
@@ -64,10 +92,16 @@ class UnitDetailOut(UnitOut):
     created_at: str | None
     rows: dict[str, int] = Field(description="rows stored per kind")
     link: list[LinkDayOut] = Field(description="the last 30 days with traffic, oldest first")
+    conflict_rows: list[ConflictOut] = Field(
+        default_factory=list, description="the newest 20 conflicts, newest first"
+    )
 
 
 class VersionOut(BaseModel):
     version: int = Field(description="the vessel's own version number")
+    instance: str = Field(
+        default="", description='the vessel database that made it ("": the legacy instance)'
+    )
     created_at: str
     accepted: bool
     trigger: str | None
@@ -85,6 +119,9 @@ class FleetVersionOut(VersionOut):
 
 class RowOut(BaseModel):
     id: int = Field(description="the vessel's row id")
+    instance: str = Field(
+        default="", description='the vessel database that made it ("": the legacy instance)'
+    )
     at: str
     received_at: str
     data: dict[str, Any] = Field(description="the vessel's row as it was sent (docs/fleet.md)")
@@ -96,7 +133,39 @@ class EventRowOut(RowOut):
 
 class IngestOut(BaseModel):
     stored: int = Field(description="rows stored by this batch")
-    duplicates: int = Field(description="rows already stored (a retry), changed nothing")
+    duplicates: int = Field(
+        description="rows already stored with the same content (a retry), changed nothing"
+    )
+    conflicts: int = Field(
+        default=0,
+        description="rows whose key was stored with other content: kept apart, never dropped "
+        "(GET /fleet/units/{unit})",
+    )
+
+
+class ErrorOut(BaseModel):
+    """The body of every answer but 200 and a bad query parameter's 422."""
+
+    detail: str = Field(description="what is wrong, one line")
+
+
+def _errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """The documented error answers of a route: 401 and 503 always, plus ``statuses``."""
+    why = {
+        401: "no token, or one that is nobody's (WWW-Authenticate: Bearer)",
+        403: "the token may not do this",
+        404: "absent, or not the token's unit (the same answer: another unit is never shown)",
+        413: "body over [api] max_batch_bytes",
+        422: "malformed: nothing of it used",
+        503: "the database does not answer",
+    }
+    out: dict[int | str, dict[str, Any]] = {}
+    for status in sorted({401, 503, *statuses}):
+        out[status] = {"model": ErrorOut, "description": why[status]}
+    out[401]["headers"] = {
+        "WWW-Authenticate": {"schema": {"type": "string"}, "description": "Bearer"}
+    }
+    return out
 
 
 # ---- who calls --------------------------------------------------------------------------------
@@ -121,10 +190,7 @@ def caller(
     """The caller of a token (401 without one, or for one that is nobody's)."""
     if credentials is not None:
         given = credentials.credentials
-        admin = request.app.state.fleet_api.token
-        if admin is not None and hmac.compare_digest(
-            given.encode(), admin.get_secret_value().encode()
-        ):
+        if request.app.state.fleet_api.is_admin(given):
             return Caller(None)
         unit = _store(request).unit_of_token(given)
         if unit is not None:
@@ -137,19 +203,55 @@ def caller(
 CallerDep = Annotated[Caller, Depends(caller)]
 StoreDep = Annotated[FleetStore, Depends(_store)]
 Limit = Annotated[int, Query(ge=1, le=MAX_LIMIT, description=f"at most this many (<= {MAX_LIMIT})")]
-Since = Annotated[datetime | None, Query(description="time >= this (ISO 8601; no offset: UTC)")]
-Until = Annotated[datetime | None, Query(description="time < this (ISO 8601; no offset: UTC)")]
+
+#: A query time: RFC 3339, its offset optional (none: UTC)
+_ISO_TIME = re.compile(
+    r"(\d{4}-\d{2}-\d{2}[Tt ]\d{2}:\d{2}):(\d{2})(\.\d+)?([Zz]|[+-]\d{2}:\d{2})?"
+)
+
+
+def _query_time(value: Any) -> Any:
+    """A query parameter's time as UTC, from RFC 3339 text alone (pydantic by itself would take
+    ``0.5`` as a Unix time, which the schema does not allow); before year 1 or after 9999 in
+    UTC: the first or last time there is."""
+    m = _ISO_TIME.fullmatch(value) if isinstance(value, str) else None
+    if m is None:
+        raise ValueError("not an ISO 8601 time (YYYY-MM-DDTHH:MM:SS, its offset or Z optional)")
+    head, second, fraction, offset = m.groups()
+    second = min(int(second), 59)  # a leap second
+    fraction = (fraction or "")[:7]  # microseconds are the finest
+    text = f"{head.upper()}:{second:02d}{fraction}{(offset or '').upper().replace('Z', '+00:00')}"
+    t = datetime.fromisoformat(text)  # a month 13 or hour 25: ValueError, a 422
+    if t.tzinfo is None:
+        return t.replace(tzinfo=UTC)
+    try:
+        return t.astimezone(UTC)
+    except OverflowError:
+        return (datetime.min if t.year == 1 else datetime.max).replace(tzinfo=UTC)
+
+
+Since = Annotated[
+    datetime | None,
+    BeforeValidator(_query_time),
+    Query(description="time >= this (ISO 8601; no offset: UTC)"),
+]
+Until = Annotated[
+    datetime | None,
+    BeforeValidator(_query_time),
+    Query(description="time < this (ISO 8601; no offset: UTC)"),
+]
 After = Annotated[
     int | None,
-    Query(ge=0, le=2**63 - 1, description="the next page: vessel row ids above this one"),
+    Query(ge=0, le=MAX_ID, description="the next page: vessel row ids above this one"),
 ]
 
 
 def _visible(store: FleetStore, who: Caller, serial: str) -> Unit:
-    """The unit ``serial`` if the caller may read it; else 404, as if absent."""
+    """The unit ``serial`` if the caller may read it; else 404, as if absent (the answer does
+    not repeat the serial: nothing of another unit in an answer to a unit)."""
     unit = store.unit_by_serial(serial)
     if unit is None or not who.sees(unit):
-        raise HTTPException(404, f"no unit {serial}")
+        raise HTTPException(404, "no such unit" if who.unit is not None else f"no unit {serial}")
     return unit
 
 
@@ -213,56 +315,134 @@ async def _body(request: Request, limit: int) -> bytes:
     return b"".join(chunks)
 
 
+def batch_schema() -> dict[str, Any]:
+    """The JSON schema of an ingest batch, format 1 (docs/fleet.md, "Wire format"): what
+    :func:`service.fleet.batch.read_batch` checks, no more (a body it takes is valid here, and
+    one it refuses, 422, is not)."""
+    time = {"type": "string", "format": "date-time", "description": "ISO 8601 with its offset"}
+    name = {"type": "string", "minLength": 1, "maxLength": MAX_NAME}
+    row_id = {"type": "integer", "minimum": 1, "maximum": MAX_ID,
+              "description": "the vessel's row id, unique per kind"}  # fmt: skip
+    data: dict[str, dict[str, Any]] = {
+        "session": {"type": "object"},
+        "window": {"type": "object"},
+        "slew": {"type": "object"},
+        "version": {
+            "type": "object",
+            "required": ["accepted"],
+            "properties": {
+                "accepted": {"type": "boolean"},
+                "trigger": {"anyOf": [name, {"type": "null"}]},
+                "method": {"anyOf": [name, {"type": "null"}]},
+                "document": {"description": "the calibration document (conventions, section 5)"},
+            },
+            "description": "what the vessel's GET /coefficients/{version} returns; its "
+            "`version`, when present, is the row's `id` (a rule this schema cannot spell)",
+        },
+        "event": {"type": "object", "required": ["kind"], "properties": {"kind": name}},
+    }
+    rows = [
+        {
+            "type": "object",
+            "title": f"{kind} row",
+            "required": ["kind", "id", "at", "data"],
+            "properties": {"kind": {"const": kind}, "id": row_id, "at": time, "data": body},
+        }
+        for kind, body in data.items()
+    ]
+    return {
+        "type": "object",
+        "title": "Batch",
+        "required": ["format", "unit", "rows"],
+        "properties": {
+            "format": {"const": FORMAT},
+            "unit": {
+                "type": "string",
+                "minLength": 1,
+                "description": "the sending unit's serial: the token's own",
+            },  # fmt: skip
+            "sent_at": {"anyOf": [time, {"type": "null"}]},
+            "backlog": {
+                "anyOf": [{"type": "integer", "minimum": 0, "maximum": MAX_ID}, {"type": "null"}],
+                "description": "outbox rows the vessel still holds besides this batch",
+            },
+            "instance": {
+                "anyOf": [
+                    {"type": "string", "pattern": f"^(|{INSTANCE.pattern})$"},
+                    {"type": "null"},
+                ],
+                "description": "the vessel database that made the rows (a uuid; absent: the "
+                "legacy instance)",
+            },
+            "rows": {"type": "array", "items": {"oneOf": rows}},
+        },
+    }
+
+
 def _routes(app: FastAPI) -> None:
     @app.post(
         "/fleet/ingest",
         response_model=IngestOut,
-        responses={
-            401: {"description": "no token, or an unknown one"},
-            403: {"description": "the token's unit is not the batch's unit"},
-            413: {"description": "body over the limit"},
-            422: {"description": "malformed batch; nothing of it stored"},
+        responses=_errors(403, 413, 422)
+        | {
+            403: {
+                "model": ErrorOut,
+                "description": "the administrator's token (it sends no "
+                "batches), or a token that is not the batch's unit's",
+            },  # fmt: skip
+            422: {
+                "model": ErrorOut,
+                "description": "a malformed batch (not the schema, not "
+                "gzip, a bad Content-Encoding): nothing of it stored",
+            },  # fmt: skip
         },
         openapi_extra={
             "requestBody": {
                 "required": True,
-                "description": "a batch, format 1 (docs/fleet.md), gzip-compressed "
-                "(Content-Encoding: gzip)",
-                "content": {"application/json": {"schema": {"type": "object"}}},
+                "description": "a batch, format 1 (docs/fleet.md), as JSON; a vessel sends it "
+                "gzip-compressed with Content-Encoding: gzip (identity is taken too)",
+                "content": {"application/json": {"schema": batch_schema()}},
             }
         },
     )
     async def ingest(request: Request, who: CallerDep, store: StoreDep) -> IngestOut:
+        if who.unit is None:  # before reading a byte of it
+            raise HTTPException(403, "the administrator's token sends no batches: use the unit's")
         limit = request.app.state.fleet_api.max_batch_bytes
         body = await _body(request, limit)
         try:
             batch = read_batch(body, request.headers.get("content-encoding"), limit)
         except BatchError as exc:
             raise HTTPException(exc.status, str(exc)) from None
-        if who.unit is None:
-            raise HTTPException(403, "the administrator's token sends no batches: use the unit's")
         if batch.unit != who.unit.serial:
-            raise HTTPException(403, f"this token is not unit {batch.unit}'s")
-        stored, duplicates = await run_in_threadpool(store.ingest, who.unit, batch, len(body))
+            raise HTTPException(403, "the batch's unit is not this token's")
+        stored, duplicates, conflicts = await run_in_threadpool(store.ingest, who.unit, batch,
+                                                                len(body))  # fmt: skip
         if stored and any(r.kind == "version" and r.data.get("accepted") for r in batch.rows):
             # a new accepted version changes its model's prior: recomputed now, in the
             # background, so that no request waits for it
             request.app.state.fleet_priors.refresh_soon()
         log.info("%s: %d rows stored, %d duplicates (%d bytes)", who.unit.serial, stored,
                  duplicates, len(body))  # fmt: skip
-        return IngestOut(stored=stored, duplicates=duplicates)
+        if conflicts:  # a key stored with other content: kept, and said
+            log.warning("%s: %d rows conflict with rows stored under the same key (instance "
+                        "%r): kept in fleet_conflicts", who.unit.serial, conflicts,
+                        batch.instance)  # fmt: skip
+        return IngestOut(stored=stored, duplicates=duplicates, conflicts=conflicts)
 
-    @app.get("/fleet/units", response_model=list[UnitOut])
+    @app.get("/fleet/units", response_model=list[UnitOut], responses=_errors())
     def units(who: CallerDep, store: StoreDep) -> list[dict[str, Any]]:
         """Every unit, by serial (a unit's token: its own alone)."""
         return store.units(only=None if who.unit is None else who.unit.id)
 
-    @app.get("/fleet/units/{unit}", response_model=UnitDetailOut, responses={404: {}})
+    @app.get("/fleet/units/{unit}", response_model=UnitDetailOut, responses=_errors(404))
     def unit(unit: str, who: CallerDep, store: StoreDep) -> dict[str, Any]:
         """One unit with its link state: rows stored, bytes and batches per day."""
         return store.unit(_visible(store, who, unit))
 
-    @app.get("/fleet/units/{unit}/versions", response_model=list[VersionOut], responses={404: {}})
+    @app.get(
+        "/fleet/units/{unit}/versions", response_model=list[VersionOut], responses=_errors(404)
+    )
     def unit_versions(
         unit: str,
         who: CallerDep,
@@ -277,7 +457,7 @@ def _routes(app: FastAPI) -> None:
         return store.rows("version", found, since=_utc(since), until=_utc(until), after=after,
                           limit=limit)  # fmt: skip
 
-    @app.get("/fleet/units/{unit}/windows", response_model=list[RowOut], responses={404: {}})
+    @app.get("/fleet/units/{unit}/windows", response_model=list[RowOut], responses=_errors(404))
     def unit_windows(
         unit: str,
         who: CallerDep,
@@ -292,7 +472,7 @@ def _routes(app: FastAPI) -> None:
         return store.rows("window", found, since=_utc(since), until=_utc(until), after=after,
                           limit=limit)  # fmt: skip
 
-    @app.get("/fleet/units/{unit}/events", response_model=list[EventRowOut], responses={404: {}})
+    @app.get("/fleet/units/{unit}/events", response_model=list[EventRowOut], responses=_errors(404))
     def unit_events(
         unit: str,
         who: CallerDep,
@@ -308,7 +488,7 @@ def _routes(app: FastAPI) -> None:
         return store.rows("event", found, since=_utc(since), until=_utc(until), after=after,
                           limit=limit, event_kind=kind)  # fmt: skip
 
-    @app.get("/fleet/versions", response_model=list[FleetVersionOut])
+    @app.get("/fleet/versions", response_model=list[FleetVersionOut], responses=_errors())
     def fleet_versions(
         who: CallerDep,
         store: StoreDep,
@@ -340,6 +520,65 @@ PriorsDep = Annotated[FleetPriors, Depends(_priors)]
 #: Response header of the fleet prior's routes: "true" when accepted versions arrived since the
 #: prior answered was computed (its successor is being computed in the background).
 STALE_HEADER = "X-Fleet-Prior-Stale"
+_STALE_DOC = {
+    STALE_HEADER: {
+        "schema": {"type": "string", "enum": ["true", "false"]},
+        "required": True,
+        "description": "true: accepted versions arrived since this prior was computed (its "
+        "successor is being computed)",
+    }
+}
+
+
+class OutlierOut(BaseModel):
+    unit: str = Field(description="the unit's serial")
+    statistic: float = Field(description="sum of its squared normalised changes")
+    dof: int
+    p_value: float
+
+
+class AgeingOut(BaseModel):
+    rate: float | None = Field(description="1-sigma change after one month (null: none)")
+    rate_sigma: float | None
+    relative: bool = Field(description="a fraction of the value (scale factors)")
+    units: int = Field(description="units behind the figure")
+    changes: int = Field(description="changes (consecutive versions) behind it")
+
+
+class FleetPriorOut(BaseModel):
+    """A ``recal.fleet_prior/1`` document (docs/fleet.md, "The fleet prior")."""
+
+    format: str
+    version: int
+    model: str
+    created_at: str
+    law: str
+    time_unit: str
+    false_alarm: float
+    coefficients: dict[str, AgeingOut] = Field(description="by the conventions' flat names")
+    outliers: list[OutlierOut] = Field(
+        description="units set aside as outliers: every one for the administrator, the "
+        "caller itself alone (if flagged) for a unit's token"
+    )
+    metadata: dict[str, Any]
+
+
+class OutliersOut(BaseModel):
+    model: str
+    prior_version: int | None
+    false_alarm: float | None
+    outliers: list[OutlierOut] = Field(
+        description="every flagged unit for the administrator; a unit's token: itself, if flagged"
+    )
+
+
+def _own_view(document: dict[str, Any], who: Caller) -> dict[str, Any]:
+    """The prior as ``who`` may see it: the model's aggregate figures, and of the outliers
+    every one for the administrator, the unit itself alone (if flagged) for a unit."""
+    if who.unit is None:
+        return document
+    mine = [o for o in document.get("outliers") or () if o.get("unit") == who.unit.serial]
+    return {**document, "outliers": mine}
 
 
 def _prior_of(priors: FleetPriors, who: Caller, model: str) -> tuple[dict[str, Any], bool]:
@@ -355,25 +594,39 @@ def _prior_of(priors: FleetPriors, who: Caller, model: str) -> tuple[dict[str, A
             f"no fleet prior for model {model}: it needs a unit of that model with two "
             "accepted versions",
         )
-    return found, model in stale
+    return _own_view(found, who), model in stale
 
 
 def _fleet_routes(app: FastAPI) -> None:
-    @app.get("/fleet/overview")
+    @app.get("/fleet/overview", responses=_errors())
     def overview(who: CallerDep, store: StoreDep, priors: PriorsDep) -> dict[str, Any]:
         """One row per unit for the dashboard (units needing attention first) and the fleet's
         totals; a unit's token: its own row alone."""
         return fleet_overview(store, priors, only=None if who.unit is None else who.unit.id)
 
-    @app.get("/fleet/prior", responses={404: {"description": "no prior for this model"}})
+    @app.get(
+        "/fleet/prior",
+        response_model=None,
+        responses={200: {"model": FleetPriorOut, "headers": _STALE_DOC}}
+        | _errors(404)
+        | {
+            404: {
+                "model": ErrorOut,
+                "description": "no prior for this model yet, another "
+                "unit's model, or no model: the administrator's token needs ?model=",
+            }
+        },  # fmt: skip
+    )
     def prior(who: CallerDep, priors: PriorsDep, model: Model | None = None) -> JSONResponse:
         """The model's current fleet prior, a ``recal.fleet_prior/1`` document: save it and
         point the vessel's ``[gate] fleet_prior`` at it (a vessel with ``[sync]`` fetches it
         itself). Its ``version`` rises only when the accepted versions behind it changed. A
-        unit's token: its own model's, which is the default ``model``."""
+        unit's token: its own model's, which is the default ``model``, with its own outlier
+        status alone (no other unit's)."""
         if model is None:
             if who.unit is None:
-                raise HTTPException(422, "give ?model=MODEL (a unit's token defaults to its own)")
+                raise HTTPException(404, "the administrator has no model of its own: give "
+                                    "?model=MODEL")  # fmt: skip
             if who.unit.model is None:
                 raise HTTPException(404, f"unit {who.unit.serial} has no model registered "
                                     "(recal fleet add-unit --rotate --model MODEL)")  # fmt: skip
@@ -381,15 +634,17 @@ def _fleet_routes(app: FastAPI) -> None:
         document, stale = _prior_of(priors, who, model)
         return JSONResponse(document, headers={STALE_HEADER: "true" if stale else "false"})
 
-    @app.get("/fleet/outliers", responses={404: {"description": "no prior for this model"}})
+    @app.get(
+        "/fleet/outliers",
+        response_model=OutliersOut,
+        responses={200: {"headers": _STALE_DOC}} | _errors(404),
+    )
     def outliers(
         model: Model, who: CallerDep, priors: PriorsDep, response: Response
     ) -> dict[str, Any]:
         """The units of ``model`` whose ageing fails the fleet prior's chi-square test, with
         their statistic (a unit's token: itself, if flagged)."""
-        doc, stale = _prior_of(priors, who, model)
+        doc, stale = _prior_of(priors, who, model)  # a unit's: its own outlier status alone
         response.headers[STALE_HEADER] = "true" if stale else "false"
-        flagged = [o for o in doc.get("outliers") or ()
-                   if who.unit is None or o.get("unit") == who.unit.serial]  # fmt: skip
         return {"model": model, "prior_version": doc.get("version"),
-                "false_alarm": doc.get("false_alarm"), "outliers": flagged}  # fmt: skip
+                "false_alarm": doc.get("false_alarm"), "outliers": doc.get("outliers") or []}  # fmt: skip

@@ -9,10 +9,13 @@ row.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import zlib
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from decimal import Decimal
 from typing import Any
 
 from recal.fleet.history import flat_version
@@ -20,10 +23,14 @@ from service.fleet.priors import coefficient_names
 
 #: The wire format this shore reads.
 FORMAT = 1
-#: Largest vessel row id (PostgreSQL BIGINT).
-MAX_ID = 2**63 - 1
+#: Largest vessel row id or count: the largest integer every JSON reader holds exactly (a
+#: double, as the dashboard's JavaScript reads it; PostgreSQL's BIGINT holds more).
+MAX_ID = 2**53 - 1
 #: Longest ``trigger``, ``method`` or event ``kind`` kept as a column (the schema's String(64)).
 MAX_NAME = 64
+#: A vessel database's instance id: a uuid4 as the vessel writes it (at most 36 characters of
+#: letters, digits and ``-``; the schema's String(36)). Absent or "": the legacy instance.
+INSTANCE = re.compile(r"[A-Za-z0-9-]{1,36}")
 
 
 class BatchError(ValueError):
@@ -42,6 +49,8 @@ class IncomingRow:
     data: dict[str, Any]
     #: the kind's filter columns (service.fleet.schema): accepted/trigger/method, kind
     columns: dict[str, Any] = field(default_factory=dict)
+    #: :func:`content_digest` of ``data``: what a row received again is compared by
+    digest: str = ""
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,8 @@ class Batch:
     rows: list[IncomingRow]
     #: outbox rows the vessel still holds besides this batch (optional ``backlog``), or None
     backlog: int | None = None
+    #: the vessel database that made the rows (optional ``instance``; "" the legacy instance)
+    instance: str = ""
 
 
 def decompress(body: bytes, encoding: str | None, max_bytes: int) -> bytes:
@@ -81,7 +92,7 @@ def read_batch(body: bytes, encoding: str | None, max_bytes: int) -> Batch:
         raise BatchError(422, f"body is not JSON: {exc}") from None
     if not isinstance(doc, dict):
         raise BatchError(422, "batch must be a JSON object")
-    if doc.get("format") != FORMAT:
+    if doc.get("format") != FORMAT or isinstance(doc.get("format"), bool):
         raise BatchError(422, f"format {doc.get('format')!r} is not {FORMAT}")
     unit = doc.get("unit")
     if not isinstance(unit, str) or not unit:
@@ -90,14 +101,49 @@ def read_batch(body: bytes, encoding: str | None, max_bytes: int) -> Batch:
     if doc.get("sent_at") is not None:
         sent_at = _time(doc["sent_at"], "sent_at")
     backlog = doc.get("backlog")
-    if backlog is not None and (
-        isinstance(backlog, bool) or not isinstance(backlog, int) or not 0 <= backlog <= MAX_ID
-    ):
-        raise BatchError(422, f"backlog {backlog!r} is not a count of rows")
+    if backlog is not None:
+        backlog = _whole(backlog)
+        if backlog is None or not 0 <= backlog <= MAX_ID:
+            raise BatchError(422, f"backlog {doc['backlog']!r} is not a count of rows")
+    instance = doc.get("instance")
+    if instance is None or instance == "":
+        instance = ""  # a vessel of a release before instances: the legacy instance
+    elif not isinstance(instance, str) or not INSTANCE.fullmatch(instance):
+        raise BatchError(422, f"instance {instance!r} is not a database instance id (a uuid)")
     rows = doc.get("rows")
     if not isinstance(rows, list):
         raise BatchError(422, "rows must be a list")
-    return Batch(unit, sent_at, [_row(i, r) for i, r in enumerate(rows)], backlog)
+    return Batch(unit, sent_at, [_row(i, r) for i, r in enumerate(rows)], backlog, instance)
+
+
+def content_digest(data: Any) -> str:
+    """The sha256 (hex) of a row's content in canonical JSON: keys sorted, no spaces, and every
+    number that a float holds exactly written as that float (``1``, ``1.0`` and ``1e0`` are the
+    same content; -0.0 is 0.0). PostgreSQL's JSONB keeps neither key order nor the spelling of
+    numbers, so a stored document read back and the same document as sent digest the same."""
+    text = json.dumps(_canonical(data), sort_keys=True, separators=(",", ":"),
+                      ensure_ascii=False, allow_nan=False)  # fmt: skip
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _canonical(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _canonical(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_canonical(v) for v in value]
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return value
+    if isinstance(value, int):
+        try:
+            as_float = float(value)
+        except OverflowError:
+            return value
+        return as_float + 0.0 if as_float == value else value  # exact: the same number
+    if isinstance(value, float):
+        return value + 0.0  # -0.0 -> 0.0
+    if isinstance(value, Decimal):  # a driver's reading of a JSON number
+        return _canonical(int(value) if value == value.to_integral_value() else float(value))
+    return value
 
 
 def _row(index: int, row: Any) -> IncomingRow:
@@ -105,11 +151,12 @@ def _row(index: int, row: Any) -> IncomingRow:
     if not isinstance(row, dict):
         raise BatchError(422, f"{where}: not an object")
     kind = row.get("kind")
-    if kind not in _COLUMNS:
+    if not isinstance(kind, str) or kind not in _COLUMNS:  # ({} is no key: a TypeError)
         raise BatchError(422, f"{where}: kind {kind!r} is not one of {', '.join(_COLUMNS)}")
-    ident = row.get("id")
-    if isinstance(ident, bool) or not isinstance(ident, int) or not 1 <= ident <= MAX_ID:
-        raise BatchError(422, f"{where}: id {ident!r} is not a vessel row id (a positive integer)")
+    ident = _whole(row.get("id"))
+    if ident is None or not 1 <= ident <= MAX_ID:
+        raise BatchError(422, f"{where}: id {row.get('id')!r} is not a vessel row id (a positive "
+                         f"integer up to {MAX_ID})")  # fmt: skip
     where = f"{where} ({kind} {ident})"
     at = _time(row.get("at"), f"{where}: at")
     data = row.get("data")
@@ -119,7 +166,15 @@ def _row(index: int, row: Any) -> IncomingRow:
         columns = _COLUMNS[kind](ident, data)
     except ValueError as exc:
         raise BatchError(422, f"{where}: {exc}") from None
-    return IncomingRow(kind, ident, at, data, columns)
+    return IncomingRow(kind, ident, at, data, columns, content_digest(data))
+
+
+def _whole(value: Any) -> int | None:
+    """An integer as JSON spells it (``3`` or ``3.0``: JSON Schema's integer), else None (not
+    ``true``)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 def _time(value: Any, where: str) -> datetime:
@@ -132,7 +187,10 @@ def _time(value: Any, where: str) -> datetime:
         raise BatchError(422, f"{where}: {value!r} is not an ISO 8601 time") from None
     if t.tzinfo is None:
         raise BatchError(422, f"{where}: {value!r} has no UTC offset")
-    return t.astimezone(UTC)
+    try:
+        return t.astimezone(UTC)
+    except OverflowError:  # year 1 east of UTC, or 9999 west of it: the first or last time
+        return (datetime.min if t.year == 1 else datetime.max).replace(tzinfo=UTC)
 
 
 def _name(data: dict[str, Any], key: str, required: bool) -> str | None:
@@ -145,7 +203,7 @@ def _name(data: dict[str, Any], key: str, required: bool) -> str | None:
 
 
 def _version(ident: int, data: dict[str, Any]) -> dict[str, Any]:
-    if "version" in data and data["version"] != ident:
+    if "version" in data and _whole(data["version"]) != ident:
         raise ValueError(f"data.version {data['version']!r} is not the row's id")
     if not isinstance(data.get("accepted"), bool):
         raise ValueError("data.accepted must be true or false")

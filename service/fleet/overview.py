@@ -13,7 +13,10 @@ The whole overview is a fixed number of SQL statements, whatever the number of u
 only the few JSON fields shown are selected out of the documents. None reads a table of vessel
 rows whole (docs/fleet.md#scale: 4.4 s for 200 units x 5 years when they did): the counts are
 the unit row's (kept by ingest), each "newest of a unit" is a per-unit lookup in an index
-(unit, ..., id), and the link reads the last days of the ingest log by its time index.
+(unit, ..., time, vessel row id), and the link reads the last days of the ingest log by its time
+index. "Newest" is by time, not by vessel row id: a vessel whose database was made again
+(another ``instance``) numbers its rows from 1 again. Conflicts (rows received whose key was
+stored with other content, docs/fleet.md) are counted on the unit's row and need a person.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from collections import defaultdict
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import and_, func, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import aliased
 
 from service.fleet.priors import FleetPriors
@@ -34,7 +37,7 @@ LINK_DAYS = 7
 #: A unit not heard from for longer is ``stale`` (hours).
 STALE_HOURS = 48.0
 #: The order of ``attention`` (and of the rows: the first reason ranks a unit).
-ATTENTION = ("rejected", "drift", "outlier", "stale", "never")
+ATTENTION = ("rejected", "drift", "outlier", "conflicts", "stale", "never")
 
 
 def _day(store: FleetStore, column: Any) -> Any:
@@ -45,11 +48,11 @@ def _day(store: FleetStore, column: Any) -> Any:
 
 def _latest(table: Any, *where: Any, key: Any = None, order: Any = None) -> Any:
     """(unit_id, ``key`` of the newest row) of ``table`` rows matching ``where``, per unit:
-    ``key`` (default the vessel row id) of the row first in ``order`` (default ``key``
-    descending). A lookup per unit in an index on (unit, ..., order), not a grouping of the
-    whole table."""
-    key = table.vessel_id if key is None else key
-    order = [key.desc()] if order is None else order
+    ``key`` (default the shore's row id) of the row first in ``order`` (default the newest by
+    time, then vessel row id). A lookup per unit in an index on (unit, ..., order), not a
+    grouping of the whole table."""
+    key = table.id if key is None else key
+    order = [table.at.desc(), table.vessel_id.desc()] if order is None else order
     newest = (
         select(key).where(table.unit_id == UnitRow.id, *where).order_by(*order).limit(1)
     ).scalar_subquery()
@@ -103,20 +106,21 @@ def overview(
             rej.vessel_id,
             rej.at,
             rej.data[("reasons",)],
+            cur.instance,
         )  # fmt: skip
         .outerjoin(current_v, current_v.c.unit_id == UnitRow.id)
-        .outerjoin(cur, and_(cur.unit_id == UnitRow.id, cur.vessel_id == current_v.c.v))
+        .outerjoin(cur, cur.id == current_v.c.v)
         .outerjoin(last_v, last_v.c.unit_id == UnitRow.id)
-        .outerjoin(last, and_(last.unit_id == UnitRow.id, last.vessel_id == last_v.c.v))
+        .outerjoin(last, last.id == last_v.c.v)
         .outerjoin(rejected_v, rejected_v.c.unit_id == UnitRow.id)
-        .outerjoin(rej, and_(rej.unit_id == UnitRow.id, rej.vessel_id == rejected_v.c.v))
+        .outerjoin(rej, rej.id == rejected_v.c.v)
         .where(*unit_filter)
     )
     # 3. the latest drift evaluation of each unit
     drift_e = _latest(EventRow, EventRow.kind == "drift")
     q_drift = (
-        select(EventRow.unit_id, EventRow.at, EventRow.data)
-        .join(drift_e, and_(drift_e.c.unit_id == EventRow.unit_id, drift_e.c.v == EventRow.vessel_id))
+        select(EventRow.unit_id, EventRow.at, EventRow.data, EventRow.instance)
+        .join(drift_e, drift_e.c.v == EventRow.id)
         .where(*([] if only is None else [EventRow.unit_id == only]))
     )  # fmt: skip
     # 4. the link: bytes per day over the last LINK_DAYS, and the backlog of the last batch
@@ -139,7 +143,7 @@ def overview(
     with store._tx() as s:
         units = s.execute(q_units).all()
         by_version = {r[0]: r[1:] for r in s.execute(q_versions)}
-        drift = {u: (at, data) for u, at, data in s.execute(q_drift)}
+        drift = {u: (at, data, inst) for u, at, data, inst in s.execute(q_drift)}
         traffic: dict[int, dict[str, tuple[int, int]]] = defaultdict(dict)
         for u, d, b, n in s.execute(q_link):
             traffic[u][d] = (int(b or 0), int(n or 0))
@@ -155,15 +159,16 @@ def overview(
     days = [(since + timedelta(days=i)).strftime("%Y-%m-%d") for i in range(LINK_DAYS)]
     rows = []
     for u, n_versions, n_rejected, n_windows in units:
-        v = by_version.get(u.id) or (None,) * 11
+        v = by_version.get(u.id) or (None,) * 12
         (cur_id, cur_at, cur_heading, cur_trigger, last_id, last_at, last_trigger,
-         last_accepted, rej_id, rej_at, rej_reasons) = v  # fmt: skip
+         last_accepted, rej_id, rej_at, rej_reasons, cur_instance) = v  # fmt: skip
         row: dict[str, Any] = {
             "unit": u.serial,
             "model": u.model,
             "versions": n_versions or 0,
             "windows": n_windows or 0,
             "current_version": cur_id,
+            "current_instance": cur_instance,
             "current_created_at": _time(cur_at),
             "age_days": None if cur_at is None else round(_age_days(now, cur_at), 2),
             "heading_error_deg_rms": _number(cur_heading),
@@ -178,7 +183,11 @@ def overview(
             "last_version": last_id,
             "last_accepted": last_accepted,
             "last_trigger": last_trigger,
-            "drift": _drift_state(drift.get(u.id), cur_id, last_trigger, last_accepted),
+            "drift": _drift_state(
+                drift.get(u.id), (cur_id, cur_instance, cur_at), last_trigger, last_accepted
+            ),  # fmt: skip
+            "instance": u.instance,
+            "conflicts": u.n_conflicts or 0,
             "link": _link(u, traffic.get(u.id, {}), days, backlog.get(u.id), now),
             "outlier": _outlier(flagged.get((u.model, u.serial)), current_priors.get(u.model)),
         }
@@ -193,7 +202,10 @@ def overview(
             m: {
                 "prior_version": d.get("version"),
                 "prior_created_at": d.get("created_at"),
-                "outliers": len(d.get("outliers") or ()),
+                # a unit's token: itself alone (the model's count would tell of the others)
+                "outliers": len(d.get("outliers") or ())
+                if only is None
+                else sum(1 for r in rows if r["model"] == m and r["outlier"]["flagged"]),
                 "prior_stale": m in stale_priors,  # its successor is being computed
             }
             for m, d in current_priors.items()
@@ -211,22 +223,25 @@ def _number(value: Any) -> float | None:
 
 
 def _drift_state(
-    latest: tuple[datetime, Any] | None,
-    current: int | None,
+    latest: tuple[datetime, Any, str] | None,
+    current_version: tuple[int | None, str | None, datetime | None],
     last_trigger: str | None,
     last_accepted: bool | None,
 ) -> dict[str, Any]:
     """``state``: ``drift`` (declared against the current version, not yet recalibrated),
     ``recalibrated`` (declared against an older version, or the last version was a drift job
     that was accepted), ``steady`` (the latest evaluation found none) or ``unknown`` (none
-    received); with the latest evaluation's figures."""
+    received); with the latest evaluation's figures. ``current_version``: (number, instance,
+    time) of the current version; version numbers compare within one vessel database instance
+    only, across two the times do."""
+    current, current_instance, current_at = current_version
     out: dict[str, Any] = {"state": "unknown", "at": None, "statistic": None,
                            "threshold": None, "suspect": None, "version": None}  # fmt: skip
     if latest is None:
         if last_trigger == "drift":
             out["state"] = "recalibrated" if last_accepted else "drift"
         return out
-    at, data = latest
+    at, data, instance = latest
     data = data if isinstance(data, dict) else {}
     inner = data.get("data") if isinstance(data.get("data"), dict) else {}
     out.update(at=_time(at), statistic=_number(inner.get("statistic")),
@@ -236,6 +251,8 @@ def _drift_state(
         out["state"] = "steady"
     elif current is None or not isinstance(inner.get("version"), int):
         out["state"] = "drift"
+    elif instance != current_instance:  # another database's numbers: by time
+        out["state"] = "recalibrated" if current_at is not None and current_at > at else "drift"
     else:
         out["state"] = "drift" if inner["version"] >= current else "recalibrated"
     return out
@@ -279,6 +296,8 @@ def _attention(row: dict[str, Any]) -> list[str]:
         out.append("drift")
     if row["outlier"]["flagged"]:
         out.append("outlier")
+    if row["conflicts"]:
+        out.append("conflicts")
     if row["link"]["state"] in ("stale", "never"):
         out.append(row["link"]["state"])
     return out
@@ -297,6 +316,7 @@ def _totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "attention": sum(1 for r in rows if r["attention"]),
         "drift": sum(1 for r in rows if r["drift"]["state"] == "drift"),
         "outliers": sum(1 for r in rows if r["outlier"]["flagged"]),
+        "conflicts": sum(r["conflicts"] for r in rows),
         "stale": sum(1 for r in rows if r["link"]["state"] != "up"),
         "bytes_7d": sum(r["link"]["bytes_7d"] for r in rows),
         "backlog": sum(r["link"]["backlog"] or 0 for r in rows),

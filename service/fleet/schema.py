@@ -2,10 +2,12 @@
 
 Every table is named ``fleet_*``, and the migrations keep their revision in
 ``fleet_alembic_version``, so the shore may share a database with anything else. A vessel row
-is stored once per (unit, vessel row id): one table per kind, each with that unique key, the
-row's time (``at``), the vessel's document as JSON (``data``) and the columns the fleet
-queries filter on pulled out of it. Revisions under ``migrations/versions`` create these
-tables by hand; the test suite checks that they match.
+is stored once per (unit, vessel database instance, vessel row id): one table per kind, each
+with that unique key, the row's time (``at``), the vessel's document as JSON (``data``), a
+digest of its content (``digest``) and the columns the fleet queries filter on pulled out of
+it. A row whose key is stored with other content goes to ``fleet_conflicts``, kept whole.
+Revisions under ``migrations/versions`` create these tables by hand; the test suite checks
+that they match.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 #: Serial of a unit: letters, digits and ``.-_``, at most this long.
 MAX_SERIAL = 64
+#: A vessel database's instance id (a uuid4, 36 characters; "" for the legacy instance).
+MAX_INSTANCE = 36
 
 
 class FleetBase(DeclarativeBase):
@@ -47,26 +51,42 @@ class UnitRow(FleetBase):
     #: kept by ingest (migration 0003), so the fleet's list reads no vessel rows
     n_versions: Mapped[int] = mapped_column(Integer, server_default="0")
     n_windows: Mapped[int] = mapped_column(BigInteger, server_default="0")
-    #: the newest accepted version stored
+    #: the newest accepted version stored (the latest by its creation time, whichever vessel
+    #: database instance made it: a rebuilt vessel's numbers start at 1 again), its instance
+    #: and time (migration 0007)
     current_version: Mapped[int | None] = mapped_column(BigInteger)
+    current_instance: Mapped[str | None] = mapped_column(String(MAX_INSTANCE))
+    current_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    #: the vessel database instance of the latest batch ("" for a vessel that sends none)
+    instance: Mapped[str | None] = mapped_column(String(MAX_INSTANCE))
+    #: rows kept in fleet_conflicts (a key stored with other content)
+    n_conflicts: Mapped[int] = mapped_column(Integer, server_default="0")
 
 
 class _VesselRow:
-    """Columns every kind shares: the key (unit, vessel row id), the time, the document."""
+    """Columns every kind shares: the key (unit, vessel database instance, vessel row id), the
+    time, the document and its content digest."""
 
     id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
     unit_id: Mapped[int] = mapped_column(ForeignKey("fleet_units.id", ondelete="CASCADE"))
     vessel_id: Mapped[int] = mapped_column(BigInteger)
+    #: the vessel database that made the row (the batch's ``instance``; "" before there was
+    #: one: the legacy instance), migration 0007
+    instance: Mapped[str] = mapped_column(String(MAX_INSTANCE), server_default="")
     at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     received_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     data: Mapped[dict] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
+    #: service.fleet.batch.content_digest of ``data`` as received (NULL: stored before 0007)
+    digest: Mapped[str | None] = mapped_column(String(64))
 
 
 def _key_and_time(name: str) -> tuple[UniqueConstraint, Index]:
     """The key of a kind's table, and the index of the per-unit time queries: with the vessel
-    row id, so where a time range starts in id order is an index-only scan (migration 0004)."""
+    row id, so where a time range starts in id order is an index-only scan (migration 0004).
+    The key's columns go (unit, vessel row id, instance): a unit's rows in vessel row id order
+    (the REST pages) are a walk of the key's index, whatever the instances (migration 0007)."""
     return (
-        UniqueConstraint("unit_id", "vessel_id", name=f"uq_{name}_key"),
+        UniqueConstraint("unit_id", "vessel_id", "instance", name=f"uq_{name}_key"),
         Index(f"ix_{name}_unit_at_id", "unit_id", "at", "vessel_id"),
     )
 
@@ -109,8 +129,9 @@ class EventRow(_VesselRow, FleetBase):
     __table_args__ = (
         *_key_and_time(__tablename__),
         Index("ix_fleet_events_kind_at", "kind", "at"),
-        # a unit's latest event of a kind (the overview's drift state), migration 0002
-        Index("ix_fleet_events_unit_kind", "unit_id", "kind", "vessel_id"),
+        # a unit's latest event of a kind by time (the overview's drift state), migrations
+        # 0002 and 0007 (by time, not vessel row id: a rebuilt vessel's ids start again)
+        Index("ix_fleet_events_unit_kind", "unit_id", "kind", "at", "vessel_id"),
     )
 
     kind: Mapped[str] = mapped_column(String(64))
@@ -134,6 +155,32 @@ class IngestRow(FleetBase):
     stored: Mapped[int] = mapped_column(Integer)
     #: outbox rows the vessel still held besides this batch, when the batch said (0002)
     backlog: Mapped[int | None] = mapped_column(Integer)
+
+
+class ConflictRow(FleetBase):
+    """A row received whose key (unit, kind, instance, vessel row id) was stored with other
+    content: kept whole, as received, never merged (migration 0007). Once per content: a retry
+    of the same batch adds nothing."""
+
+    __tablename__ = "fleet_conflicts"
+    __table_args__ = (
+        UniqueConstraint(
+            "unit_id", "kind", "instance", "vessel_id", "digest", name="uq_fleet_conflicts_key"
+        ),  # fmt: skip
+        Index("ix_fleet_conflicts_unit_received", "unit_id", "received_at"),
+    )
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
+    unit_id: Mapped[int] = mapped_column(ForeignKey("fleet_units.id", ondelete="CASCADE"))
+    kind: Mapped[str] = mapped_column(String(16))
+    instance: Mapped[str] = mapped_column(String(MAX_INSTANCE))
+    vessel_id: Mapped[int] = mapped_column(BigInteger)
+    at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    received_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    digest: Mapped[str] = mapped_column(String(64))
+    #: the digest of the row stored under that key (what it differs from)
+    stored_digest: Mapped[str] = mapped_column(String(64))
+    data: Mapped[dict] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
 
 
 class PriorRow(FleetBase):

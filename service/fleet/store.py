@@ -5,8 +5,9 @@ session in one transaction, so one :class:`FleetStore` is shared by the server's
 database failures surface as :class:`service.db.StoreError` with a one-line message.
 
 Delivery is at least once, storage once (docs/fleet.md): a batch goes in one transaction, each
-row an insert that does nothing when its key (unit, vessel row id) is already stored (ON
-CONFLICT DO NOTHING, SQLite and PostgreSQL). Concurrent batches of one unit take its unit row
+row an insert that does nothing when its key (unit, vessel database instance, vessel row id) is
+already stored (ON CONFLICT DO NOTHING, SQLite and PostgreSQL); a row not inserted is then
+compared by content with the one stored, and kept in ``fleet_conflicts`` when it differs. Concurrent batches of one unit take its unit row
 first (an UPDATE of ``last_contact``), so they run one after the other; rows are inserted in
 key order, so batches of different units never wait on each other in a cycle.
 """
@@ -21,19 +22,20 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any
+from typing import Any, NamedTuple
 
-from sqlalchemy import case, func, select, text, update
+from sqlalchemy import and_, case, func, or_, select, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.db import StoreError, _as_utc, _one_line
-from service.fleet.batch import Batch
+from service.fleet.batch import Batch, IncomingRow, content_digest
 from service.fleet.schema import (
     KINDS,
     MAX_SERIAL,
+    ConflictRow,
     EventRow,
     IngestRow,
     UnitRow,
@@ -47,6 +49,8 @@ SERIAL = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_SERIAL - 1}}}")
 CHUNK_ROWS = 500
 #: Days of ingest log ``unit()`` sums into bytes per day.
 LINK_DAYS = 30
+#: Newest conflicts ``unit()`` shows whole.
+CONFLICTS_SHOWN = 20
 #: Advisory lock key of the shore's migrations on PostgreSQL (the vessel's is 7310599).
 _MIGRATION_LOCK = 7310600
 
@@ -57,6 +61,16 @@ class UnitExistsError(StoreError):
 
 class UnknownUnitError(StoreError):
     """A serial this shore does not know."""
+
+
+class Ingested(NamedTuple):
+    """What :meth:`FleetStore.ingest` made of a batch: rows stored (new), duplicates (stored
+    already with the same content) and conflicts (stored already with other content: kept in
+    ``fleet_conflicts``, never dropped)."""
+
+    stored: int
+    duplicates: int
+    conflicts: int
 
 
 @dataclass(frozen=True)
@@ -218,21 +232,32 @@ class FleetStore:
         return None if row is None else Unit(row.id, row.serial, row.model)
 
     # ---- ingest -------------------------------------------------------------------------
-    def ingest(self, unit: Unit, batch: Batch, compressed_bytes: int) -> tuple[int, int]:
-        """Store ``batch`` of ``unit`` in one transaction: (rows stored, duplicates). Rows whose
-        key is stored already, in the database or earlier in the batch, change nothing."""
+    def ingest(self, unit: Unit, batch: Batch, compressed_bytes: int) -> Ingested:
+        """Store ``batch`` of ``unit`` in one transaction: (rows stored, duplicates, conflicts).
+
+        A row's key is (unit, the batch's ``instance``, kind, vessel row id). A row whose key
+        is stored already with the same content (:func:`~service.fleet.batch.content_digest`)
+        is a duplicate and changes nothing; with other content it is a conflict, kept whole in
+        ``fleet_conflicts`` (once per content: a retried batch adds nothing) and counted on the
+        unit's row. A key repeated within the batch: the first is the row, a later one with
+        other content a conflict."""
         now = datetime.now(UTC)
         insert = postgresql.insert if self.dialect == "postgresql" else sqlite.insert
+        instance = batch.instance
         by_kind: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in KINDS}
+        conflicting: list[tuple[IncomingRow, str]] = []  # (row, the digest it differs from)
         for r in batch.rows:
-            values = {"unit_id": unit.id, "vessel_id": r.id, "at": r.at, "received_at": now,
-                      "data": r.data, **r.columns}  # fmt: skip
-            by_kind[r.kind].setdefault(r.id, values)  # the first of a key repeated in the batch
-        stored = 0
+            values = {"unit_id": unit.id, "vessel_id": r.id, "instance": instance, "at": r.at,
+                      "received_at": now, "data": r.data, "digest": r.digest, **r.columns}  # fmt: skip
+            first = by_kind[r.kind].setdefault(r.id, values)
+            if first is not values and first["digest"] != r.digest:
+                conflicting.append((r, first["digest"]))
         new: dict[str, list[int]] = {k: [] for k in KINDS}
+        incoming = {(r.kind, r.id): r for r in reversed(batch.rows)}  # the first of each key
         with self._tx(write=True) as s:
             # the unit's row first: one unit's batches take turns, whatever their rows
-            s.execute(update(UnitRow).where(UnitRow.id == unit.id).values(last_contact=now))
+            s.execute(update(UnitRow).where(UnitRow.id == unit.id)
+                      .values(last_contact=now, instance=instance))  # fmt: skip
             for kind, rows in by_kind.items():
                 if not rows:
                     continue
@@ -242,34 +267,105 @@ class FleetStore:
                 # insertmanyvalues): compiling a 500-row VALUES per batch cost 3x the insert
                 statement = (
                     insert(table)
-                    .on_conflict_do_nothing(index_elements=["unit_id", "vessel_id"])
+                    .on_conflict_do_nothing(index_elements=["unit_id", "vessel_id", "instance"])
                     .returning(table.c.vessel_id)  # the rows inserted, not those ignored
                 )
                 for i in range(0, len(ordered), CHUNK_ROWS):
                     found = s.connection().execute(statement, ordered[i : i + CHUNK_ROWS])
                     new[kind] += found.scalars().all()
+                # the keys already stored: the same content (a retry) or not (a conflict)
+                inserted = set(new[kind])
+                known = [k for k in sorted(rows) if k not in inserted]
+                for vessel_id, digest in self._stored_digests(s, KINDS[kind], unit.id, instance,
+                                                              known):  # fmt: skip
+                    if digest != rows[vessel_id]["digest"]:
+                        conflicting.append((incoming[(kind, vessel_id)], digest))
             stored = sum(len(ids) for ids in new.values())
+            recorded = self._record_conflicts(s, insert, unit.id, instance, now, conflicting)
+            values: dict[str, Any] = {}
             if new["version"] or new["window"]:  # the unit's counts (GET /fleet/units)
-                accepted = [v for v in new["version"] if by_kind["version"][v]["accepted"]]
-                values: dict[str, Any] = {
-                    "n_versions": UnitRow.n_versions + len(new["version"]),
-                    "n_windows": UnitRow.n_windows + len(new["window"]),
-                }
-                if accepted:
-                    top = max(accepted)
-                    values["current_version"] = case(
-                        (UnitRow.current_version >= top, UnitRow.current_version), else_=top
-                    )
+                values["n_versions"] = UnitRow.n_versions + len(new["version"])
+                values["n_windows"] = UnitRow.n_windows + len(new["window"])
+            if recorded:
+                values["n_conflicts"] = UnitRow.n_conflicts + recorded
+            accepted = [by_kind["version"][v] for v in new["version"]
+                        if by_kind["version"][v]["accepted"]]  # fmt: skip
+            if accepted:
+                # the current version: the newest accepted by creation time, whichever instance
+                # made it (a rebuilt vessel's version numbers start at 1 again)
+                top = max(accepted, key=lambda v: (v["at"], v["vessel_id"]))
+                newer = or_(
+                    UnitRow.current_at.is_(None),
+                    UnitRow.current_at < top["at"],
+                    and_(UnitRow.current_at == top["at"], UnitRow.current_version <= top["vessel_id"]),
+                )  # fmt: skip
+                for column, value in (("current_version", top["vessel_id"]),
+                                      ("current_at", top["at"]),
+                                      ("current_instance", instance)):  # fmt: skip
+                    values[column] = case((newer, value), else_=getattr(UnitRow, column))
+            if values:
                 s.execute(update(UnitRow).where(UnitRow.id == unit.id).values(**values))
             s.add(IngestRow(unit_id=unit.id, at=now, compressed_bytes=compressed_bytes,
                             rows=len(batch.rows), stored=stored, backlog=batch.backlog))  # fmt: skip
-        return stored, len(batch.rows) - stored
+        n_conflicts = len(conflicting)
+        return Ingested(stored, len(batch.rows) - stored - n_conflicts, n_conflicts)
+
+    @staticmethod
+    def _stored_digests(
+        s: Session, table: Any, unit_id: int, instance: str, ids: list[int]
+    ) -> Iterator[tuple[int, str]]:
+        """(vessel row id, content digest) of the stored rows of ``ids``; a row stored before
+        digests were kept (migration 0007) is digested from its document as stored."""
+        for i in range(0, len(ids), CHUNK_ROWS):
+            chunk = ids[i : i + CHUNK_ROWS]
+            where = (table.unit_id == unit_id, table.instance == instance,
+                     table.vessel_id.in_(chunk))  # fmt: skip
+            older = []
+            for vessel_id, digest in s.execute(select(table.vessel_id, table.digest).where(*where)):
+                if digest is None:
+                    older.append(vessel_id)
+                else:
+                    yield vessel_id, digest
+            if older:
+                found = s.execute(select(table.vessel_id, table.data)
+                                  .where(*where[:2], table.vessel_id.in_(older)))  # fmt: skip
+                for vessel_id, data in found:
+                    yield vessel_id, content_digest(data)
+
+    @staticmethod
+    def _record_conflicts(
+        s: Session,
+        insert: Any,
+        unit_id: int,
+        instance: str,
+        now: datetime,
+        conflicting: list[tuple[IncomingRow, str]],
+    ) -> int:
+        """Keep the conflicting rows whole (once per content); returns how many are new."""
+        if not conflicting:
+            return 0
+        table = ConflictRow.__table__
+        statement = (
+            insert(table)
+            .on_conflict_do_nothing(
+                index_elements=["unit_id", "kind", "instance", "vessel_id", "digest"]
+            )
+            .returning(table.c.id)
+        )
+        rows = [{"unit_id": unit_id, "kind": r.kind, "instance": instance, "vessel_id": r.id,
+                 "at": r.at, "received_at": now, "digest": r.digest, "stored_digest": stored,
+                 "data": r.data} for r, stored in conflicting]  # fmt: skip
+        recorded = 0
+        for i in range(0, len(rows), CHUNK_ROWS):
+            recorded += len(s.connection().execute(statement, rows[i : i + CHUNK_ROWS]).all())
+        return recorded
 
     # ---- queries ------------------------------------------------------------------------
     def units(self, only: int | None = None) -> list[dict[str, Any]]:
         """Every unit (or only the one of id ``only``), by serial: ``unit``, ``model``,
-        ``versions``, ``windows``, ``current_version``, ``last_contact`` (the counts kept on
-        the unit's row by :meth:`ingest`: no vessel row is read)."""
+        ``versions``, ``windows``, ``current_version`` (and its ``current_instance``),
+        ``last_contact``, ``instance`` (of the latest batch), ``conflicts`` (the counts kept
+        on the unit's row by :meth:`ingest`: no vessel row is read)."""
         query = select(UnitRow).order_by(UnitRow.serial)
         if only is not None:
             query = query.where(UnitRow.id == only)
@@ -282,15 +378,18 @@ class FleetStore:
                 "versions": u.n_versions or 0,
                 "windows": u.n_windows or 0,
                 "current_version": u.current_version,
+                "current_instance": u.current_instance,
                 "last_contact": _time(u.last_contact),
+                "instance": u.instance,
+                "conflicts": u.n_conflicts or 0,
             }
             for u in rows
         ]
 
     def unit(self, unit: Unit, days: int = LINK_DAYS) -> dict[str, Any]:
         """One unit with its link state: the :meth:`units` fields plus ``created_at``, rows
-        stored per kind, and per UTC day of the last ``days`` the batches, rows and
-        compressed bytes received."""
+        stored per kind, per UTC day of the last ``days`` the batches, rows and compressed
+        bytes received, and its newest conflicts (:meth:`conflicts`) as ``conflict_rows``."""
         (out,) = self.units(only=unit.id)
         since = datetime.now(UTC) - timedelta(days=days)
         if self.dialect == "postgresql":
@@ -316,12 +415,32 @@ class FleetStore:
             per_day = s.execute(link).all()
         out["created_at"] = _time(created)
         out["rows"] = stored
+        out["conflict_rows"] = self.conflicts(unit, limit=CONFLICTS_SHOWN)
         out["link"] = [
             {"day": d, "batches": n, "rows": int(r or 0), "stored": int(st or 0),
              "compressed_bytes": int(b or 0)}
             for d, n, r, st, b in per_day
         ]  # fmt: skip
         return out
+
+    def conflicts(self, unit: Unit, limit: int = 100) -> list[dict[str, Any]]:
+        """The unit's conflicts, newest first: each the row received whole (``kind``,
+        ``instance``, ``id``, ``at``, ``data``) with ``received_at``, its ``digest`` and the
+        ``stored_digest`` of the row stored under that key."""
+        query = (
+            select(ConflictRow)
+            .where(ConflictRow.unit_id == unit.id)
+            .order_by(ConflictRow.received_at.desc(), ConflictRow.id.desc())
+            .limit(limit)
+        )
+        with self._tx() as s:
+            found = s.scalars(query).all()
+        return [
+            {"kind": c.kind, "instance": c.instance, "id": c.vessel_id, "at": _time(c.at),
+             "received_at": _time(c.received_at), "digest": c.digest,
+             "stored_digest": c.stored_digest, "data": c.data}
+            for c in found
+        ]  # fmt: skip
 
     def rows(
         self,
@@ -333,17 +452,25 @@ class FleetStore:
         after: int | None = None,
         limit: int = 100,
         event_kind: str | None = None,
+        instance: str | None = None,
     ) -> list[dict[str, Any]]:
-        """One unit's rows of ``kind``, by vessel row id (oldest first): ``since`` <= time <
-        ``until``, vessel row id > ``after`` (the next page), at most ``limit``."""
+        """One unit's rows of ``kind``, by vessel row id then instance (a rebuilt vessel's ids
+        start at 1 again: its rows and the older database's interleave, each with its
+        ``instance``): ``since`` <= time < ``until``, vessel row id > ``after`` (the next
+        page), at most ``limit`` (a page ends after the last row of its last vessel row id, so
+        ``after`` misses no instance's row: a page may hold a few more); ``instance``: that
+        vessel database's rows alone."""
         table = KINDS[kind]
         query = select(table).where(table.unit_id == unit.id)
+        if instance is not None:
+            query = query.where(table.instance == instance)
         query = _between(query, table, since, until)
-        if after is not None:
-            query = query.where(table.vessel_id > after)
         if event_kind is not None:
             query = query.where(EventRow.kind == event_kind)
-        query = query.order_by(table.vessel_id).limit(limit)
+        rest = query  # the rest of the last vessel row id's rows, below
+        if after is not None:
+            query = query.where(table.vessel_id > after)
+        query = query.order_by(table.vessel_id, table.instance).limit(limit)
         with self._tx() as s:
             if since is not None:
                 # where the time range starts in id order (an index-only scan of (unit, at,
@@ -355,7 +482,12 @@ class FleetStore:
                 if first is None:
                     return []
                 query = query.where(table.vessel_id >= first)
-            found = s.scalars(query).all()
+            found = list(s.scalars(query).all())
+            if len(found) == limit and instance is None:  # the other instances of the last id
+                last = found[-1]
+                rest = rest.where(table.vessel_id == last.vessel_id,
+                                  table.instance > last.instance).order_by(table.instance)  # fmt: skip
+                found += s.scalars(rest).all()
         return [_out(kind, r) for r in found]
 
     def fleet_versions(
@@ -406,6 +538,7 @@ def _out(kind: str, row: Any) -> dict[str, Any]:
     if kind == "version":
         return {
             "version": row.vessel_id,
+            "instance": row.instance,
             "created_at": _time(row.at),
             "accepted": row.accepted,
             "trigger": row.trigger,
@@ -413,10 +546,11 @@ def _out(kind: str, row: Any) -> dict[str, Any]:
             "received_at": _time(row.received_at),
             "document": row.data,
         }
-    out = {"id": row.vessel_id, "at": _time(row.at), "received_at": _time(row.received_at)}
+    out = {"id": row.vessel_id, "instance": row.instance, "at": _time(row.at),
+           "received_at": _time(row.received_at)}  # fmt: skip
     if kind == "event":
         out["kind"] = row.kind
     return {**out, "data": row.data}
 
 
-__all__: Sequence[str] = ("FleetStore", "Unit", "UnitExistsError", "UnknownUnitError")
+__all__: Sequence[str] = ("FleetStore", "Ingested", "Unit", "UnitExistsError", "UnknownUnitError")

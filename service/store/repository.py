@@ -38,6 +38,7 @@ from service.store.rows import (
     POSITION_COLUMNS,
     CalibrationRow,
     EventRow,
+    InstanceRow,
     NoiseFloorRow,
     PositionRow,
     SchemaVersionRow,
@@ -65,6 +66,7 @@ class Store:
         self.url = parsed.render_as_string(hide_password=True)
         self._outbox_ready = False  # the schema has the outbox (checked at the first write)
         self._ship_columns: bool | None = None  # positions has them (checked at the first read)
+        self._instance: str | None = None  # this database's instance id (read once)
         try:
             self._engine, self._lock = make_engine(parsed, connect_timeout_s)
         except (NoSuchModuleError, ImportError) as exc:
@@ -442,6 +444,20 @@ class Store:
                 return
             self._outbox_ready = True  # schemas only move up under a running Store
         outbox.enqueue(s, kind, ids)
+
+    def instance(self) -> str:
+        """This database's instance id (a uuid4 made with the database, schema version 6),
+        which every batch to the shore carries; ``""`` for a database not yet migrated to it
+        (the shore's legacy instance)."""
+        if self._instance is None:
+            with self._tx() as s:
+                if not inspect(s.connection()).has_table(InstanceRow.__tablename__):
+                    return ""
+                found = s.scalar(select(InstanceRow.instance).limit(1))
+            if found is None:
+                return ""
+            self._instance = found  # made once with the database: never changes under a Store
+        return self._instance
 
     def outbox(self, limit: int) -> list[OutboxEntry]:
         """The ``limit`` oldest rows still to send to the shore."""

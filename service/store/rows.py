@@ -186,5 +186,17 @@ class SyncDayRow(Base):
     last_contact: Mapped[datetime | None]
 
 
+class InstanceRow(Base):
+    """This database's identity (schema version 6): one row, a uuid4 made when the database is
+    created (a database made before gets one when migrated). Fleet sync sends it with every
+    batch, so the shore tells a rebuilt vessel's rows (its ids restart at 1) from the rows of
+    the database it replaced (docs/fleet.md)."""
+
+    __tablename__ = "store_instance"
+
+    instance: Mapped[str] = mapped_column(String(36), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
 _missing = {*POSITION_COLUMNS, *SHIP_COLUMNS} - set(PositionRow.__table__.columns.keys())
 assert not _missing, f"PositionRow lacks positions-file columns {_missing}"

@@ -15,10 +15,10 @@ from service.store.engine import WRITE_OPTION
 from service.store.errors import StoreError, one_line
 from service.store.rows import SchemaVersionRow
 
-#: Schema version this code writes, kept by the migrations (service/migrations: revision 0005
-#: records 5); a database with a newer one is refused, and so is one at an Alembic revision
+#: Schema version this code writes, kept by the migrations (service/migrations: revision 0006
+#: records 6); a database with a newer one is refused, and so is one at an Alembic revision
 #: this code does not know.
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 
 
 def recorded_schema(conn: Any) -> tuple[int | None, list[str]]:

@@ -95,8 +95,12 @@ def build(
     sent_at = iso_utc(now or datetime.now(UTC))
     # what the vessel still holds besides this batch: the shore shows the link's backlog
     backlog = max(0, store.outbox_count() - len(batch.settles))
-    head = json.dumps({"format": FORMAT, "unit": unit, "sent_at": sent_at, "backlog": backlog},
-                      separators=(",", ":"))  # fmt: skip
+    header: dict[str, Any] = {"format": FORMAT, "unit": unit, "sent_at": sent_at,
+                              "backlog": backlog}  # fmt: skip
+    instance = store.instance()  # which database made the rows: their ids are its own
+    if instance:
+        header["instance"] = instance
+    head = json.dumps(header, separators=(",", ":"))
     document = f'{head[:-1]},"rows":[{",".join(encoded)}]}}'.encode()
     batch.json_bytes = len(document)
     batch.body = gzip.compress(document, compresslevel=6, mtime=0)

@@ -23,9 +23,13 @@ ADMIN = "admin-token-0123456789abcdef"
 
 
 def shore_toml(tmp_path: Path, url: str, port: int = 8760, **api: str) -> Path:
+    """A shore.toml whose administrator's token is in a file beside it (as systemd's
+    LoadCredential= gives it), never in the file itself."""
     path = tmp_path / "shore.toml"
+    (tmp_path / "admin-token").write_text(ADMIN + "\n")
     extra = "".join(f'{k} = "{v}"\n' for k, v in api.items())
-    path.write_text(f'database_url = "{url}"\n\n[api]\nport = {port}\ntoken = "{ADMIN}"\n{extra}')
+    path.write_text(f'database_url = "{url}"\n\n[api]\nport = {port}\n'
+                    f'token_file = "{tmp_path / "admin-token"}"\n{extra}')  # fmt: skip
     return path
 
 
@@ -133,7 +137,7 @@ def test_fleet_serve_runs_the_migrations_serves_and_stops_cleanly(tmp_path) -> N
         r = httpx.post(f"{base}/fleet/ingest", content=gzip.compress(json.dumps(body).encode()),
                        headers={"Authorization": f"Bearer {token}", "Content-Encoding": "gzip",
                                 "Content-Type": "application/json"})  # fmt: skip
-        assert r.json() == {"stored": 1, "duplicates": 0}
+        assert r.json() == {"stored": 1, "duplicates": 0, "conflicts": 0}
         units = httpx.get(f"{base}/fleet/units", headers={"Authorization": f"Bearer {ADMIN}"})
         assert [u["unit"] for u in units.json()] == ["SN-1"]
     finally:

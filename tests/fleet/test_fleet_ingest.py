@@ -26,19 +26,19 @@ def test_a_gzip_batch_is_stored_and_a_replay_changes_nothing(shore, units, wire)
     rows = wire.rows_of(3)
     r = shore.send(units["SN-A"], wire.batch("SN-A", rows))
     assert r.status_code == 200, r.text
-    assert r.json() == {"stored": len(rows), "duplicates": 0}
+    assert r.json() == {"stored": len(rows), "duplicates": 0, "conflicts": 0}
     before = counts(shore, units["SN-A"], "SN-A")
     assert before == {"session": 1, "window": 3, "slew": 1, "version": 2, "event": 1}
     versions = shore.get(units["SN-A"], "/fleet/units/SN-A/versions").json()
     # the same batch again (an acknowledgement lost): nothing new, all counted as duplicates
     r = shore.send(units["SN-A"], wire.batch("SN-A", rows))
-    assert r.json() == {"stored": 0, "duplicates": len(rows)}
+    assert r.json() == {"stored": 0, "duplicates": len(rows), "conflicts": 0}
     assert counts(shore, units["SN-A"], "SN-A") == before
     assert shore.get(units["SN-A"], "/fleet/units/SN-A/versions").json() == versions
     # a retry that overlaps: only the new rows are stored
     more = wire.rows_of(5)
     r = shore.send(units["SN-A"], wire.batch("SN-A", more))
-    assert r.json() == {"stored": 2, "duplicates": len(more) - 2}
+    assert r.json() == {"stored": 2, "duplicates": len(more) - 2, "conflicts": 0}
     assert counts(shore, units["SN-A"], "SN-A")["window"] == 5
     unit = shore.get(units["SN-A"], "/fleet/units/SN-A").json()
     assert unit["last_contact"] is not None
@@ -66,7 +66,7 @@ def test_a_unit_token_writes_and_reads_its_own_unit_only(shore, units, wire) -> 
     # A's token, B's batch: refused, nothing stored for either
     r = shore.send(a, wire.batch("SN-B", wire.rows_of(4, first=100)))
     assert r.status_code == 403, r.text
-    assert "SN-B" in r.json()["detail"]
+    assert r.json()["detail"] == "the batch's unit is not this token's"  # B's serial not echoed
     assert counts(shore, b, "SN-B")["window"] == 2
     assert counts(shore, a, "SN-A")["window"] == 0
     # A's token reads A, and B answers 404 as if absent (the same as an unknown serial)
@@ -75,7 +75,7 @@ def test_a_unit_token_writes_and_reads_its_own_unit_only(shore, units, wire) -> 
         other = shore.get(a, f"/fleet/units/SN-B{path}")
         absent = shore.get(a, f"/fleet/units/SN-Z{path}")
         assert other.status_code == absent.status_code == 404
-        assert other.json()["detail"] == "no unit SN-B"
+        assert other.json() == absent.json() == {"detail": "no such unit"}
     assert [u["unit"] for u in shore.get(a, "/fleet/units").json()] == ["SN-A"]
     assert shore.get(a, "/fleet/versions").json() == []
     assert {v["unit"] for v in shore.get(b, "/fleet/versions").json()} == {"SN-B"}
@@ -139,7 +139,11 @@ def test_bodies_that_are_not_a_batch(shore, units, wire) -> None:
         assert (r.status_code, says in r.json()["detail"]) == (status, True), (says, r.text)
     assert sum(counts(shore, token, "SN-A").values()) == 0
     # plain JSON (no Content-Encoding) is read as well
-    assert shore.post(token, good, gzipped=False).json() == {"stored": 7, "duplicates": 0}
+    assert shore.post(token, good, gzipped=False).json() == {
+        "stored": 7,
+        "duplicates": 0,
+        "conflicts": 0,
+    }
 
 
 def test_concurrent_and_repeated_batches_store_each_row_once(shore, units, wire) -> None:

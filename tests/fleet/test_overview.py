@@ -46,7 +46,11 @@ def fleet(shore: Any, wire: Any, simulated_fleet: Any) -> dict[str, Any]:
     for serial, rows in sim["units"].items():
         tokens[serial] = shore.store.add_unit(serial, "KVH-1750")
         batch = {**wire.batch(serial, rows), "backlog": 7}
-        assert shore.send(tokens[serial], batch).json() == {"stored": len(rows), "duplicates": 0}
+        assert shore.send(tokens[serial], batch).json() == {
+            "stored": len(rows),
+            "duplicates": 0,
+            "conflicts": 0,
+        }
     tokens[DSP] = shore.store.add_unit(DSP, "DSP-1760")
     assert shore.send(tokens[DSP], wire.batch(DSP, _dsp_rows(wire))).status_code == 200
     tokens[QUIET] = shore.store.add_unit(QUIET, "DSP-1760")
@@ -166,8 +170,11 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
         and prior.coefficients["gyro.bias.bx"].units == 7
     )
     assert [o.unit for o in prior.outliers] == list(fleet["outliers"])
-    # asked again (and by a unit of the model): the same prior, not recomputed
-    assert shore.get(tokens["KVH-1750-SN0001"], "/fleet/prior", model="KVH-1750").json() == doc
+    # asked again (and by a unit of the model): the same prior, not recomputed; the unit sees
+    # no other unit flagged (issue 37: its own outlier status alone)
+    mine = shore.get(tokens["KVH-1750-SN0001"], "/fleet/prior", model="KVH-1750").json()
+    itself = [o for o in doc["outliers"] if o["unit"] == "KVH-1750-SN0001"]
+    assert mine == {**doc, "outliers": itself}
     again = FleetPriors(shore.store).current(["KVH-1750"])["KVH-1750"]
     assert again["version"] == v0 and again["created_at"] == doc["created_at"]
     with shore.store._tx() as s:
@@ -201,7 +208,7 @@ def test_the_fleet_prior_is_versioned_stored_and_cached(shore, fleet, wire) -> N
     assert none.status_code == 404 and "two accepted versions" in none.json()["detail"]
     assert shore.get(ADMIN, "/fleet/prior", model="NOPE").status_code == 404
     assert shore.get(None, "/fleet/prior", model="KVH-1750").status_code == 401
-    assert shore.get(ADMIN, "/fleet/prior").status_code == 422
+    assert shore.get(ADMIN, "/fleet/prior").status_code == 404  # the admin has no model
 
     # the outliers: every flagged unit for the administrator, itself alone for a unit
     (outlier,) = fleet["outliers"]
@@ -292,7 +299,7 @@ def test_a_request_never_waits_for_a_recompute(shore, fleet, wire, monkeypatch) 
     row["data"] = {**row["data"], "version": k, "created_at": "2026-11-27T00:00:00Z"}
     body = json.dumps(wire.batch(serial, [row])).encode()
     unit = shore.store.unit_by_serial(serial)
-    assert shore.store.ingest(unit, read_batch(body, None, len(body)), len(body)) == (1, 0)
+    assert shore.store.ingest(unit, read_batch(body, None, len(body)), len(body)) == (1, 0, 0)
 
     computed_in: list[str] = []
     compute = FleetPriors._compute

@@ -192,7 +192,7 @@ def check_upgrade_keeps_everything(url: str) -> None:
     old.close()
     store = Store(url)
     after = dump(url)
-    assert after.pop("schema_version")[:-4] == before.pop("schema_version")
+    assert after.pop("schema_version")[:-5] == before.pop("schema_version")
     # revision 0005 added the ship's columns at the end of positions: NULL in every old row
     ship = len(SHIP_COLUMNS)
     assert all(row[-ship:] == (None,) * ship for row in after["positions"])
@@ -201,7 +201,7 @@ def check_upgrade_keeps_everything(url: str) -> None:
         after["sqlite_sequence"] = [r for r in after["sqlite_sequence"] if r[0] != "outbox"]
     assert after == before
     assert snapshot(store) == served
-    assert store.schema_version() == SCHEMA_VERSION == 5  # the release refuses it from now on
+    assert store.schema_version() == SCHEMA_VERSION == 6  # the release refuses it from now on
     assert store.schema_revision() == migrations.head()
     check_history_is_in_the_outbox(store, served)
 
@@ -251,7 +251,7 @@ def test_upgrade_is_idempotent(store_url: str, store: Store, document: dict[str,
     again.create_schema()
     command.upgrade(migrations.alembic_config(url=store_url), "head")
     assert dump(store_url) == before  # one schema_version row per version, data untouched
-    assert [r[0] for r in before["schema_version"]] == [1, 2, 3, 4, 5]
+    assert [r[0] for r in before["schema_version"]] == [1, 2, 3, 4, 5, 6]
     assert again.recorded_schema() == (SCHEMA_VERSION, migrations.head())
     again.close()
 
@@ -276,13 +276,35 @@ def test_ship_columns_are_added_and_extra_values_move_into_them(
     store = Store(store_url)
     store.create_schema()
     positions, ids = store.positions()
-    assert ids == [1, 2] and store.recorded_schema() == (5, "0005")
+    assert ids == [1, 2] and store.recorded_schema() == (SCHEMA_VERSION, migrations.head())
     np.testing.assert_array_equal(positions.columns["latitude_deg"], [57.7, np.nan])
     np.testing.assert_array_equal(positions.columns["sog_kn"], [0.2, np.nan])
     assert "heading_deg" not in positions.columns  # no window has it
     assert positions.columns["pressure_hpa"].tolist() == [1013, 1001]
     assert "latitude_deg" not in store.positions(since_id=1)[0].columns
     store.close()
+
+
+def test_every_database_gets_its_own_instance_id(store_url: str, tmp_path: Path) -> None:
+    """Revision 0006: a database made before it gets an instance id when migrated, kept from
+    then on; a database made afresh gets a new one (what the shore tells a rebuilt vessel by)."""
+    at_revision(store_url, "0005")
+    old = Store(store_url)
+    assert old.instance() == ""  # not migrated yet: the shore's legacy instance
+    old.close()
+    store = Store(store_url)
+    store.create_schema()
+    first = store.instance()
+    assert len(first) == 36 and first.count("-") == 4
+    store.create_schema()  # idempotent: the id stays
+    again = Store(store_url)
+    assert again.instance() == first
+    again.close()
+    store.close()
+    other = Store(f"sqlite:///{tmp_path / 'fresh.db'}")
+    other.create_schema()
+    assert other.instance() not in ("", first)
+    other.close()
 
 
 def test_concurrent_starts_migrate_once(store_url: str) -> None:
@@ -302,7 +324,7 @@ def test_concurrent_starts_migrate_once(store_url: str) -> None:
     for t in threads:
         t.join()
     assert errors == []
-    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3, 4, 5]
+    assert [r[0] for r in dump(store_url)["schema_version"]] == [1, 2, 3, 4, 5, 6]
 
 
 def test_downgrade_and_upgrade_again(store_url: str, store: Store) -> None:

@@ -74,7 +74,7 @@ function flatten(doc) {
 }
 
 // ---- the overview ------------------------------------------------------------------------------
-const FLAG_ORDER = ["rejected", "drift", "outlier", "stale", "never"];
+const FLAG_ORDER = ["rejected", "drift", "outlier", "conflicts", "stale", "never"];
 const COLUMNS = [
   { key: "unit", head: "Unit", get: (u) => u.unit },
   { key: "attention", head: "Attention", get: (u) => attentionRank(u), cell: (u) => el("td", {}, ...u.attention.map((a) => el("span", { className: `flag flag-${a}` }, a))) },
@@ -89,6 +89,7 @@ const COLUMNS = [
   { key: "heading", head: "Heading err (°)", num: true, get: (u) => u.heading_error_deg_rms ?? -1, show: (u) => (isNum(u.heading_error_deg_rms) ? u.heading_error_deg_rms.toPrecision(2) : "-") },
   { key: "contact", head: "Last contact", get: (u) => u.link.last_contact || "", cell: (u) => el("td", { className: `when state-${u.link.state}` }, when(u.link.last_contact)) },
   { key: "bytes", head: "Bytes/day (7 d)", num: true, get: (u) => u.link.bytes_7d, show: (u) => bytesWord(u.link.bytes_7d / 7) },
+  { key: "conflicts", head: "Conflicts", num: true, get: (u) => u.conflicts ?? 0, cell: (u) => el("td", { className: `num${u.conflicts ? " state-drift" : ""}`, title: "rows received whose key was stored with other content (kept, see the unit)" }, String(u.conflicts ?? 0)) },
   { key: "backlog", head: "Backlog", num: true, get: (u) => u.link.backlog ?? -1, show: (u) => (u.link.backlog == null ? "-" : String(u.link.backlog)) },
   { key: "outlier", head: "Outlier", get: (u) => (u.outlier.flagged ? u.outlier.statistic : -1), cell: (u) => el("td", { className: u.outlier.flagged ? "state-drift" : "" }, u.outlier.flagged ? `χ² ${fmt(u.outlier.statistic, 1)} / ${u.outlier.dof}` : "no") },
 ];
@@ -100,7 +101,7 @@ function attentionRank(u) {
 function renderTotals() {
   const o = state.overview, t = o.totals;
   const items = [["units", t.units], ["need attention", t.attention], ["versions", t.versions], ["rejected", t.rejected],
-    ["drift", t.drift], ["outliers", t.outliers], ["link not up", t.stale], ["windows", t.windows],
+    ["drift", t.drift], ["outliers", t.outliers], ["link not up", t.stale], ["conflicts", t.conflicts ?? 0], ["windows", t.windows],
     ["traffic / day (7 d)", bytesWord(t.bytes_7d / 7)], ["backlog (rows)", t.backlog]];
   $("totals").replaceChildren(...items.map(([k, v]) => el("div", {}, el("dt", {}, k), el("dd", {}, String(v)))));
   $("generated").textContent = `as of ${when(o.generated_at)}`;
@@ -155,7 +156,7 @@ async function openUnit(serial) {
   for (const id of ["unit-card", "link-card", "events-card"]) $(id).hidden = false;
   $("unit-name").textContent = serial;
   const row = state.overview.units.find((u) => u.unit === serial);
-  $("unit-meta").textContent = row ? `${row.model || "no model"} · current ${row.current_version == null ? "none" : `v${row.current_version}`} (${fmt(row.age_days, 1)} days old) · ${row.versions} versions, ${row.rejected.count} rejected · drift ${row.drift.state} · link ${row.link.state}` : "";
+  $("unit-meta").textContent = row ? `${row.model || "no model"} · current ${row.current_version == null ? "none" : `v${row.current_version}`} (${fmt(row.age_days, 1)} days old) · ${row.versions} versions, ${row.rejected.count} rejected · drift ${row.drift.state} · link ${row.link.state}${row.conflicts ? ` · ${row.conflicts} conflict${row.conflicts === 1 ? "" : "s"}` : ""}${row.instance ? ` · database ${row.instance.slice(0, 8)}` : ""}` : "";
   $("unit-reasons").replaceChildren(...(row?.rejected.last_reasons || []).map((r) => el("li", {}, `v${row.rejected.last_version} rejected: ${r}`)));
   const path = `units/${encodeURIComponent(serial)}`;
   try {
@@ -165,6 +166,7 @@ async function openUnit(serial) {
     fillCoefSelect();
     renderUnitChart();
     renderLink(detail);
+    renderConflicts(detail);
     renderEvents(events.slice(-50).reverse());
   } catch (e) {
     $("unit-detail").textContent = `cannot load ${serial}: ${e.message}`;
@@ -215,6 +217,12 @@ function renderUnitChart() {
       if (v) $("unit-detail").textContent = `v${v.version} (${v.accepted ? "accepted" : "rejected"}, ${v.trigger}): ${(v.document?.reasons || []).join("; ") || "no reasons given"}`;
     });
   }
+}
+
+function renderConflicts(detail) {
+  // rows received whose key (kind, database instance, id) was stored with other content: kept whole on shore
+  $("unit-conflicts").replaceChildren(...(detail.conflict_rows || []).map((c) => el("li", {},
+    `conflict: ${c.kind} ${c.id} of database ${c.instance ? c.instance.slice(0, 8) : "(legacy)"} received ${when(c.received_at)} differs from the row stored (digest ${c.digest.slice(0, 12)} vs ${c.stored_digest.slice(0, 12)})`)));
 }
 
 function renderLink(detail) {
