@@ -64,7 +64,7 @@ def _ranking_run(job: tuple[str, str, str, int]) -> dict:
     from recal.model.coefficients import CoefficientSet
     from recal.model.terms import catalogue_terms
     from recal.sim.simulate import simulate_positions
-    from recal.solve.calibrate import CalibrationOptions
+    from recal.solve.options import CalibrationOptions
 
     effect, design, profile, seed = job
     kind, n = DESIGNS[design]
@@ -94,7 +94,7 @@ def _clean_run(seed: int) -> dict:
     from recal.errors import RecalInputError
     from recal.model.coefficients import CoefficientSet
     from recal.sim.simulate import simulate_positions
-    from recal.solve.calibrate import CalibrationOptions
+    from recal.solve.options import CalibrationOptions
 
     rng = np.random.default_rng(seed)
     if seed % 4 == 0:
@@ -120,7 +120,8 @@ def _magnetic_run(job: tuple[str, int]) -> dict:
     from recal.model.coefficients import CoefficientSet
     from recal.model.plugins import hidden_plugin
     from recal.sim.simulate import design_orientations, simulate_positions
-    from recal.solve.calibrate import CalibrationOptions, calibrate
+    from recal.solve.calibrate import calibrate
+    from recal.solve.options import CalibrationOptions
     from service.cli.common import load_plugin
 
     design, seed = job

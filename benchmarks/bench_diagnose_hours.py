@@ -188,7 +188,8 @@ def run_job(job: tuple[str, int | str]) -> dict:
     the seed model's chi2_red with independent windows."""
     from recal.diagnose.effects import diagnose
     from recal.errors import RecalInputError
-    from recal.solve.calibrate import CalibrationOptions, calibrate
+    from recal.solve.calibrate import calibrate
+    from recal.solve.options import CalibrationOptions
 
     name, seed = job
     cell = cells()[name]

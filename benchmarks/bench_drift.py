@@ -31,15 +31,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from recal.diagnose.drift import (  # noqa: E402
     DriftConfig,
-    _parts,
     drift_inputs,
     drift_test,
+    gain_parts,
     plain_cusum,
     whiten,
 )
 from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.sim.simulate import simulate_positions  # noqa: E402
-from recal.solve.calibrate import CalibrationOptions, calibrate  # noqa: E402
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions  # noqa: E402
 
 LAT = 45.0
 STEPS = {
@@ -77,7 +78,7 @@ def oracle_lambda(inputs, step, fit) -> float:
     F = np.concatenate([np.zeros((1, D, D)), np.cumsum(np.einsum("mid,mie->mde", C, C), axis=0)])
     lam, V = np.linalg.eigh(inputs.coeff_cov)
     Lp = V * np.sqrt(np.clip(lam, 0.0, None))
-    info = _parts(F, Lp, within - 1, np.array([0]))[1][0, j]
+    info = gain_parts(F, Lp, within - 1, np.array([0]))[1][0, j]
     return float(delta * delta * info)
 
 

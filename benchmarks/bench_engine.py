@@ -34,9 +34,10 @@ import numpy as np
 from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.nafsa import NafsaConfig
 from recal.solve.observability import analyze, jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.phases import paper_phases
 from recal.solve.problem import Problem
 

@@ -39,8 +39,9 @@ from recal.detect.slews import Slews, in_accel_frame
 from recal.model.positions import Positions
 from recal.sim.session import simulate_session
 from recal.solve import calibrate as calibrate_module
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.observability import jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.surrogate import SurrogateProblem, data_noise
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.cli.main import main as recal_main

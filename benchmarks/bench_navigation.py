@@ -42,7 +42,8 @@ from recal.nav.ins_error import describe_change, predict_from_uncertainty, predi
 from recal.nav.navigation import NMI_M, correct_outputs, decimate, navigate
 from recal.nav.trajectory import DEFAULT_LEGS, Leg, VoyageSpec, simulate_voyage
 from recal.sim.simulate import NoiseSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 HARBIN_LAT = 45.75
 QIANDAO_LAT, QIANDAO_LON = 29.6, 119.0

@@ -53,16 +53,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from recal.diagnose.drift import (  # noqa: E402
     DriftConfig,
-    _parts,
     drift_inputs,
     drift_test,
+    gain_parts,
     whiten,
 )
 from recal.diagnose.effects import diagnose  # noqa: E402
 from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.model.positions import Positions  # noqa: E402
 from recal.sim.simulate import NoiseSpec, simulate_positions  # noqa: E402
-from recal.solve.calibrate import CalibrationOptions, calibrate  # noqa: E402
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions  # noqa: E402
 from recal.solve.wander import TriadWander, WanderModel, possible_wander  # noqa: E402
 
 TRUTH = CoefficientSet.seed_truth()
@@ -169,7 +170,7 @@ def run_unit(seed: int, method: str) -> dict:
     F = np.concatenate([np.zeros((1, D, D)), np.cumsum(np.einsum("mid,mie->mde", C, C), axis=0)])
     ev, V = np.linalg.eigh(null.coeff_cov)
     j = null.names.index(f"gyro.scale.K{'xyz'[u.step_axis]}")
-    info = _parts(F, V * np.sqrt(np.clip(ev, 0, None)), WITHIN - 1, np.array([0]))[1][0, j]
+    info = gain_parts(F, V * np.sqrt(np.clip(ev, 0, None)), WITHIN - 1, np.array([0]))[1][0, j]
     delta = STEP_PPM * 1e-6 * cal.coefficients.values["gyro.scale"][u.step_axis]
     lam = float(delta**2 * info)
     delays = {}

@@ -51,7 +51,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.model.positions import Positions  # noqa: E402
 from recal.sim.simulate import NoiseSpec, simulate_positions  # noqa: E402
-from recal.solve.calibrate import CalibrationOptions, calibrate  # noqa: E402
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions  # noqa: E402
 
 TRUTH = CoefficientSet.seed_truth()
 WINDOW_S, GAP_S, TAU_S, K_WANDER = 600.0, 720.0, 6 * 3600.0, 2.0

@@ -43,7 +43,8 @@ from scipy.optimize import least_squares
 
 from recal.detect.slews import Slews, quat_from_rotvec, quat_multiply, rotate_back
 from recal.model.positions import Positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 DEG_S = math.pi / 180.0
 

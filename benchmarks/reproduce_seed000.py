@@ -22,8 +22,9 @@ import numpy as np
 from recal.model.coefficients import SEED_000_TABLE2, CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.observability import analyze, jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
 
 #: Seed 000 Table 3 "Relative Error" column, as printed (units as in the paper).

@@ -64,8 +64,8 @@ _API = {
     "windows_to_columns": "recal.detect.windows",
     # calibration
     "calibrate": "recal.solve.calibrate",
-    "CalibrationOptions": "recal.solve.calibrate",
-    "CalibrationResult": "recal.solve.calibrate",
+    "CalibrationOptions": "recal.solve.options",
+    "CalibrationResult": "recal.solve.result",
     "WanderModel": "recal.solve.wander",
     "TriadWander": "recal.solve.wander",
     # checking a calibration
@@ -159,4 +159,4 @@ class _Recal(types.ModuleType):
 
 
 sys.modules[__name__].__class__ = _Recal
-_moved.install()
+_moved.install(__all__)

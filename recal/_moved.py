@@ -37,6 +37,8 @@ REMOVED_IN = "0.3.0"
 MOVED: dict[str, tuple[str, ...]] = {
     "recal.alignment": ("recal.nav.alignment",),
     "recal.calibrate": (
+        "recal.solve.options",
+        "recal.solve.result",
         "recal.solve.calibrate",
         "recal.solve.slew_fit",
         "recal.solve.prior",
@@ -89,15 +91,16 @@ MOVED_INTO_PACKAGE: dict[str, tuple[str, ...]] = {
 def message(old: str, name: str, home: str) -> str:
     """The warning: what is deprecated (the old path, or ``old.name`` where the old path is now
     a package, which itself stays), where ``name`` lives now, and when it goes."""
-    import recal
-
-    also = " (or recal)" if name in recal.__all__ else ""
+    also = " (or recal)" if name in _PUBLIC else ""
     return (
         f"{old} is deprecated; import {name} from {home}{also} — it will be removed in {REMOVED_IN}"
     )
 
 
 _MISSING = object()
+#: The package's public names (``recal.__all__``), given by :func:`install`: the warning says
+#: where a name is also importable from ``recal``.
+_PUBLIC: frozenset[str] = frozenset()
 
 
 def _find(name: str, homes: Sequence[str]) -> tuple[str, Any] | None:
@@ -183,7 +186,10 @@ class MovedFinder:
         module.__dir__ = lambda: sorted(public_names(homes))  # type: ignore[method-assign]
 
 
-def install() -> None:
-    """Put the finder on ``sys.meta_path`` once (``import recal`` calls it)."""
+def install(public: Sequence[str] = ()) -> None:
+    """Put the finder on ``sys.meta_path`` once (``import recal`` calls it with its public
+    names)."""
+    global _PUBLIC
+    _PUBLIC = frozenset(public)
     if not any(isinstance(f, MovedFinder) for f in sys.meta_path):
         sys.meta_path.append(MovedFinder())

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from recal.nav.navigation import NMI_M
-from recal.solve.calibrate import CalibrationResult
+from recal.solve.result import CalibrationResult
 from service.config import GateSettings
 from service.db import CalibrationRecord
 

@@ -17,7 +17,8 @@ import numpy as np
 from recal.diagnose.drift import covariance_to_json
 from recal.errors import RecalInputError
 from recal.model.positions import Positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.jobs import report_progress
 
 

@@ -21,7 +21,8 @@ import numpy as np
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
-from recal.solve.calibrate import CalibrationOptions, check_design
+from recal.solve.calibrate import check_design
+from recal.solve.options import CalibrationOptions
 from service.config import Settings
 from service.db import StoreError
 from service.events import Events

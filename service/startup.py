@@ -44,7 +44,7 @@ def prepare_state_dir(settings: Settings) -> Path | None:
     Returns the folder when it is used, else None; RecalInputError when it cannot be made."""
     state = Path(settings.state_dir)
     spool = spool_folder(settings)
-    written = [_sqlite_folder(settings.database_url), Path(settings.publish_path).absolute(),
+    written = [sqlite_folder(settings.database_url), Path(settings.publish_path).absolute(),
                None if spool is None else spool.absolute()]  # fmt: skip
     if not any(p is not None and p.is_relative_to(state) for p in written):
         return None
@@ -112,9 +112,9 @@ def check_database(url: str, timeout_s: float = 5.0) -> None:
     """The database opens (a SQLite file's folder exists and is writable; a server answers)."""
     from service.db import Store, StoreError
 
-    folder = _sqlite_folder(url)
+    folder = sqlite_folder(url)
     if folder is not None:
-        _check_sqlite_folder(folder)
+        check_sqlite_folder(folder)
     try:
         store = Store(url, connect_timeout_s=timeout_s)
     except StoreError as exc:
@@ -122,7 +122,7 @@ def check_database(url: str, timeout_s: float = 5.0) -> None:
     store.close()
 
 
-def _sqlite_folder(url: str) -> Path | None:
+def sqlite_folder(url: str) -> Path | None:
     """The folder a file SQLite URL puts its database in (None for other URLs and :memory:)."""
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError
@@ -136,7 +136,7 @@ def _sqlite_folder(url: str) -> Path | None:
     return Path(parsed.database).absolute().parent
 
 
-def _check_sqlite_folder(folder: Path) -> None:
+def check_sqlite_folder(folder: Path) -> None:
     if not folder.is_dir():
         what = "is not a directory" if folder.exists() else "does not exist"
         raise RecalInputError(

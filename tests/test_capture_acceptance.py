@@ -24,7 +24,8 @@ from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.session import Session, simulate_session
 from recal.sim.simulate import NoiseSpec
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.capture_sim import CaptureInfo, Damage, kvh_like_truth, session_to_kvh
 from service.cli.main import main
 

@@ -14,7 +14,8 @@ from recal.diagnose.effects import diagnose
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import simulate_session
 from recal.sim.simulate import NoiseSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 

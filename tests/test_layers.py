@@ -105,3 +105,107 @@ def test_the_service_core_does_not_import_the_command_line() -> None:
     assert len(core) > 15
     bad = [(_rel(p), m) for p in core for m in _imports(p) if m.startswith("service.cli")]
     assert not bad, bad
+
+
+# ---- no circles, no private names across modules (issue 38) -----------------------------------
+
+#: Where the project's modules live: the three packages, and the benchmarks' scripts, which are
+#: read by the next engineer as much as the packages are.
+PACKAGES = ("drivers", "recal", "service")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _project_modules() -> dict[str, Path]:
+    return {_module_name(p): p for pkg in PACKAGES for p in _modules(pkg)}
+
+
+def _edges(path: Path, modules: dict[str, Path]) -> tuple[set[str], list[tuple[str, str]]]:
+    """The project modules ``path`` imports (anywhere in the file: module level, in functions,
+    under TYPE_CHECKING), and the private names it takes from another module as (module,
+    name)."""
+    me = (
+        _module_name(path)
+        if path.is_relative_to(ROOT / "drivers")
+        or any(path.is_relative_to(ROOT / p) for p in PACKAGES)
+        else ""
+    )
+    package = me if path.name == "__init__.py" else me.rpartition(".")[0]
+    targets: set[str] = set()
+    private: list[tuple[str, str]] = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            targets |= {a.name for a in node.names if a.name in modules}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join([*up, *([node.module] if node.module else [])])
+            for alias in node.names:
+                if f"{base}.{alias.name}" in modules:  # a submodule
+                    targets.add(f"{base}.{alias.name}")
+                elif base in modules:
+                    targets.add(base)
+                    dunder = alias.name.startswith("__")
+                    if alias.name.startswith("_") and not dunder and base != me:
+                        private.append((base, alias.name))
+    return targets - {me}, private
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            w = next(children, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(sorted(graph.get(w, ())))))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                component = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    component.append(w)
+                    if w == v:
+                        break
+                if len(component) > 1:
+                    out.append(sorted(component))
+    return out
+
+
+def test_no_module_imports_itself_in_a_circle() -> None:
+    """Every import counts, TYPE_CHECKING and function-level ones included: a circle hidden
+    behind a late import is still two modules that cannot be read, or changed, apart."""
+    modules = _project_modules()
+    assert len(modules) > 100
+    graph = {m: _edges(p, modules)[0] for m, p in modules.items()}
+    assert not _cycles(graph)
+
+
+def test_the_cycle_finder_finds_a_circle() -> None:
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []

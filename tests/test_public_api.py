@@ -131,7 +131,7 @@ TERM_PROPERTIES = ("size", "group")
 #: a DeprecationWarning naming the new path, until 0.3.0.
 MOVED = {
     "recal.alignment": ("Alignment", "recal.nav.alignment"),
-    "recal.calibrate": ("CalibrationOptions", "recal.solve.calibrate"),
+    "recal.calibrate": ("CalibrationOptions", "recal.solve.options"),
     "recal.coefficient_schema": ("schema_version", "recal.model.coefficient_schema"),
     "recal.coefficients": ("CoefficientSet", "recal.model.coefficients"),
     "recal.consider": ("prior_sigma", "recal.solve.consider"),

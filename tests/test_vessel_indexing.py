@@ -28,7 +28,8 @@ from recal.model.coefficients import read_coefficients
 from recal.model.positions import Positions
 from recal.sim.simulate import NoiseSpec
 from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 LAT = 57.7
 VERTICAL = [(0.0, 0.0, 0.0), (0.0, 0.0, 90.0), (0.0, 0.0, 180.0), (0.0, 0.0, 270.0)]

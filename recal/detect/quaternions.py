@@ -61,7 +61,7 @@ def rodrigues(phi: np.ndarray, v: np.ndarray) -> np.ndarray:
     return rotate_back(quat_from_rotvec(-phi), v)
 
 
-def _chain_components(w, x, y, z):
+def chain_components(w, x, y, z):
     """Ordered Hamilton product over the last axis of quaternion components (..., G): pairwise,
     log2(G) vectorised steps. Returns the four components (...,)."""
     while w.shape[-1] > 1:

@@ -13,7 +13,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from recal.detect.slew_data import DEFAULT_GROUPS, DROP_REASONS, MAX_SLEW_S, Slews
-from recal.detect.slew_groups import _assemble, compose_groups, group_increments, shift_reference
+from recal.detect.slew_groups import (
+    assemble_groups,
+    compose_groups,
+    group_increments,
+    shift_reference,
+)
 
 
 class SlewCollector:
@@ -106,7 +111,7 @@ class SlewCollector:
                 dropped["lost_frames"] += 1  # the recording ended before the slew did
         start = np.array([w.start_s for w in self._windows], dtype=float)
         end = np.array([w.end_s for w in self._windows], dtype=float)
-        return _assemble(reduced, self._period, start, end, dropped, self._groups)
+        return assemble_groups(reduced, self._period, start, end, dropped, self._groups)
 
 
 class ReducedSlew(NamedTuple):
@@ -281,4 +286,4 @@ def slews_from_reduced(
             dropped[r.dropped] = dropped.get(r.dropped, 0) + 1
         else:
             kept.append((a, b, r.reference, r.samples, r.groups))
-    return _assemble(kept, period_s, window_start_s, window_end_s, dropped, groups)
+    return assemble_groups(kept, period_s, window_start_s, window_end_s, dropped, groups)

@@ -58,10 +58,10 @@ def build_slews(
         (a, b, ref, g.shape[0], group_increments(g, period_s, ref, groups))
         for a, b, ref, g in pieces
     ]
-    return _assemble(reduced, period_s, window_start_s, window_end_s, dropped, groups)
+    return assemble_groups(reduced, period_s, window_start_s, window_end_s, dropped, groups)
 
 
-def _assemble(
+def assemble_groups(
     reduced: Sequence[tuple[int, int, np.ndarray, int, tuple]],
     period_s: float,
     window_start_s: np.ndarray,

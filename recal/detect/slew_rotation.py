@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from recal.detect.quaternions import (
-    _chain_components,
+    chain_components,
     cofactor3,
     quat_from_rotvec,
     quat_multiply,
@@ -82,7 +82,7 @@ def slew_rotations(
     phi, rest = _group_rotvecs(slews, gain, A, offset, zero_rate)
     angle = np.sqrt(np.einsum("psig,psig->psg", phi, phi))
     k = rotvec_factor(angle)
-    w, x, y, z = _chain_components(np.cos(0.5 * angle), *(phi[:, :, i] * k for i in range(3)))
+    w, x, y, z = chain_components(np.cos(0.5 * angle), *(phi[:, :, i] * k for i in range(3)))
     return np.stack([w, x, y, z], axis=-1), rest
 
 

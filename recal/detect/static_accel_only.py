@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from recal.detect.static_sums import _window_sem
+from recal.detect.static_sums import allan_window_sem
 from recal.detect.windows import Window
 
 #: An accelerometer-only window needs the gyro loud through the pose (tremor): when one quiet
@@ -71,7 +71,7 @@ class AccelOnlyWindows:
                     drop.add(id(st))
                     rep.rejected[st[2]] -= 1
             std = np.concatenate((w.gyro_std, w.accel_std))
-            sem = _window_sem(w.samples, std, w.allan_sq, w.allan_terms, w.block_frames)
+            sem = allan_window_sem(w.samples, std, w.allan_sq, w.allan_terms, w.block_frames)
             self._out.append(replace(w, gyro_still=False, gyro_sem=sem[:3], accel_sem=sem[3:]))
             rep.still_stretches_used += 1
             rep.windows_kept += 1

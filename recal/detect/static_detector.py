@@ -54,22 +54,22 @@ from recal.detect.static_accel_only import AccelOnlyWindows
 from recal.detect.static_config import DetectorConfig
 from recal.detect.static_report import DetectionReport, DetectionResult
 from recal.detect.static_sums import (
-    _A,
-    _BLOCK_FEATS,
-    _G,
-    _LOST,
-    _NCOL,
-    _T,
-    _TEMP,
-    _TRA,
-    _TRG,
-    _VALID,
-    _add_blocks,
-    _edges,
-    _Piece,
-    _piece_features,
-    _window_sem,
-    _window_sums,
+    BLOCK_FEATS,
+    COL_A,
+    COL_G,
+    COL_LOST,
+    COL_T,
+    COL_TEMP,
+    COL_TRA,
+    COL_TRG,
+    COL_VALID,
+    NCOL,
+    Piece,
+    add_blocks,
+    allan_window_sem,
+    piece_features,
+    run_edges,
+    window_sums,
 )
 from recal.detect.windows import Window
 from recal.errors import RecalInputError
@@ -120,7 +120,7 @@ class StaticDetector(AccelOnlyWindows):
         self.config = config
         self.report = DetectionReport()
         self._on_traces = on_traces
-        self._data = np.empty((0, _NCOL))
+        self._data = np.empty((0, NCOL))
         self._base = 0  # global index of _data[0]
         self._received = 0
         self._t0: float | None = None
@@ -166,7 +166,7 @@ class StaticDetector(AccelOnlyWindows):
         # Stage 3: trimmed runs and their running sums.
         self._next_m = 0
         self._prev_m = False
-        self._piece: _Piece | None = None
+        self._piece: Piece | None = None
         self._out: list[Window] = []
         # Per-triad stillness: a second track on the accelerometer alone (the gyro vetoes
         # nothing there); its runs the both-triad track left without a window become
@@ -262,20 +262,20 @@ class StaticDetector(AccelOnlyWindows):
                 f"time must increase: frame {self._received + i} at {t[i]} s "
                 "does not come after the previous one"
             )
-        rows = np.empty((n, _NCOL))
-        rows[:, _T] = t
-        rows[:, _G] = g
-        rows[:, _A] = a
+        rows = np.empty((n, NCOL))
+        rows[:, COL_T] = t
+        rows[:, COL_G] = g
+        rows[:, COL_A] = a
         ok = np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
         if valid is not None:
             ok &= valid.astype(bool)
-        rows[:, _VALID] = ok
-        rows[:, _TEMP] = np.nan if temperature_c is None else temperature_c
+        rows[:, COL_VALID] = ok
+        rows[:, COL_TEMP] = np.nan if temperature_c is None else temperature_c
         lost = np.zeros(n) if lost_before is None else lost_before.astype(np.float64)
         if (lost < 0).any() or not np.isfinite(lost).all():
             raise RecalInputError("lost_before must hold frame counts >= 0")
-        rows[:, _LOST] = lost
-        rows[:, _TRA:] = np.nan
+        rows[:, COL_LOST] = lost
+        rows[:, COL_TRA:] = np.nan
         if n:
             if self._t0 is None:
                 self._t0 = float(t[0])
@@ -285,9 +285,9 @@ class StaticDetector(AccelOnlyWindows):
                 first = int(np.argmax(ok))
                 self._g_ref, self._a_ref = g[first].copy(), a[first].copy()
             if math.isnan(self._temp_ref):
-                finite = ok & np.isfinite(rows[:, _TEMP])
+                finite = ok & np.isfinite(rows[:, COL_TEMP])
                 if finite.any():
-                    self._temp_ref = float(rows[int(np.argmax(finite)), _TEMP])
+                    self._temp_ref = float(rows[int(np.argmax(finite)), COL_TEMP])
         rep = self.report
         rep.frames += n
         rep.invalid_frames += int(n - ok.sum())
@@ -336,7 +336,7 @@ class StaticDetector(AccelOnlyWindows):
                 return False
             if n < 2:
                 return False
-            rate = 1.0 / float(np.median(np.diff(self._view(0, n)[:, _T])))
+            rate = 1.0 / float(np.median(np.diff(self._view(0, n)[:, COL_T])))
         window_s, trim_s, min_s = cfg.durations(rate)
         h = max(1, round(window_s * rate / 2))
         self._geom = _Geometry(
@@ -372,7 +372,7 @@ class StaticDetector(AccelOnlyWindows):
             a_lo, a_hi = f_lo - h, f_hi - h  # window starts
             b0 = a_lo // W * W
             rows = self._view(b0, f_hi + h)
-            sums = _window_sums(self._features(rows), (a_lo - b0, a_hi - b0), W)
+            sums = window_sums(self._features(rows), (a_lo - b0, a_hi - b0), W)
             cnt = sums[:, 0]
             with np.errstate(invalid="ignore", divide="ignore"):
                 mean = sums[:, 1:7] / cnt[:, None]
@@ -388,15 +388,15 @@ class StaticDetector(AccelOnlyWindows):
             tra[sl] = np.where(measured, var[:, 3:6].sum(axis=1), np.inf)
             trg[sl] = np.where(measured, var[:, 0:3].sum(axis=1), np.inf)
         stats = self._view(lo, hi)
-        stats[:, _TRA], stats[:, _TRG] = tra, trg  # kept for the windows' mean trace
+        stats[:, COL_TRA], stats[:, COL_TRG] = tra, trg  # kept for the windows' mean trace
         if self._on_traces is not None:
             self._on_traces(
                 first_index=lo,
-                time_s=stats[:, _T] - self._t0,
-                gyro=stats[:, _G],
-                accel=stats[:, _A],
-                temperature_c=stats[:, _TEMP],
-                valid=stats[:, _VALID] > 0,
+                time_s=stats[:, COL_T] - self._t0,
+                gyro=stats[:, COL_G],
+                accel=stats[:, COL_A],
+                temperature_c=stats[:, COL_TEMP],
+                valid=stats[:, COL_VALID] > 0,
                 accel_trace=tra,
                 gyro_trace=trg,
             )
@@ -407,11 +407,13 @@ class StaticDetector(AccelOnlyWindows):
 
     def _features(self, rows: np.ndarray) -> np.ndarray:
         """Per frame: validity, then values and squares relative to the reference frame."""
-        w = rows[:, _VALID] > 0
+        w = rows[:, COL_VALID] > 0
         f = np.zeros((rows.shape[0], 13))
         if self._g_ref is not None:
             f[:, 0] = w
-            rel = np.concatenate((rows[:, _G] - self._g_ref, rows[:, _A] - self._a_ref), axis=1)
+            rel = np.concatenate(
+                (rows[:, COL_G] - self._g_ref, rows[:, COL_A] - self._a_ref), axis=1
+            )
             rel[~w] = 0.0  # invalid frames carry no weight and may hold garbage
             f[:, 1:7] = rel
             f[:, 7:13] = rel * rel
@@ -425,7 +427,7 @@ class StaticDetector(AccelOnlyWindows):
             return
         lo = self._pending[0][0]
         hi = self._pending[-1][0] + self._pending[-1][1].shape[0]
-        t = self._view(lo, hi)[:, _T] - self._t0
+        t = self._view(lo, hi)[:, COL_T] - self._t0
         if not final and t[-1] < cfg.init_still_s:
             return
         n = np.concatenate([p[1] for p in self._pending])
@@ -444,8 +446,8 @@ class StaticDetector(AccelOnlyWindows):
         if self._thr_g is None:
             self._thr_g = cfg.threshold_k * float(np.median(trg[sel]))
         still = self._view(0, lo + int(np.flatnonzero(t < cfg.init_still_s)[-1]) + 1)
-        ok = still[:, _VALID] > 0
-        self._gyro_ref = still[ok][:, _G].mean(axis=0)
+        ok = still[:, COL_VALID] > 0
+        self._gyro_ref = still[ok][:, COL_G].mean(axis=0)
         rep = self.report
         rep.gyro_reference = self._gyro_ref.copy()
         self._learning = False
@@ -467,13 +469,13 @@ class StaticDetector(AccelOnlyWindows):
         g = self._geom
         tol = self.config.max_gap_frames
         rows = self._view(lo, lo + n.shape[0])
-        valid = rows[:, _VALID] > 0
+        valid = rows[:, COL_VALID] > 0
         idx = np.arange(lo, lo + n.shape[0])
         last_valid = np.maximum.accumulate(np.where(valid, idx, self._last_valid))
         if idx.size:
             self._last_valid = int(last_valid[-1])
         fault = np.zeros(n.shape[0], dtype=np.int8)
-        fault[rows[:, _LOST] > tol] = 2
+        fault[rows[:, COL_LOST] > tol] = 2
         fault[~valid & (idx - last_valid > tol)] = 1
         vq = (n >= g.n_min) & (tra <= self._thr_a) & (trg <= self._thr_g)
         q = vq & (fault == 0)
@@ -492,7 +494,7 @@ class StaticDetector(AccelOnlyWindows):
             return
         need = g.required + 2 * g.trim
         # Runs of q (pieces) that close here, with the fault on their left and right.
-        q_st, q_en = _edges(self._prev_q, q)
+        q_st, q_en = run_edges(self._prev_q, q)
         left = np.where(q_st > 0, fault[np.maximum(q_st - 1, 0)], self._prev_fault)
         starts, lefts = q_st + lo, left.astype(np.int64)
         if self._q_open is not None:
@@ -507,7 +509,7 @@ class StaticDetector(AccelOnlyWindows):
         cause = np.where(p_left != 0, p_left, p_right)[short]
         p_short_start = p_start[short]
         # Candidates (runs of vq) and which one holds each short piece.
-        c_st, c_en = _edges(self._prev_vq, vq)
+        c_st, c_en = run_edges(self._prev_vq, vq)
         c_starts = c_st + lo
         carried = self._c_open is not None
         if carried:
@@ -567,8 +569,8 @@ class StaticDetector(AccelOnlyWindows):
         if index.size == 0:
             return np.zeros(0)
         k = np.clip(index - self._base, 0, self._data.shape[0] - 1)
-        held = self._data[k, _T] - self._t0
-        before = self._data[0, _T] - self._t0 - (self._base - index) / self._geom.rate
+        held = self._data[k, COL_T] - self._t0
+        before = self._data[0, COL_T] - self._t0 - (self._base - index) / self._geom.rate
         return np.where(index >= self._base, held, before)
 
     def _trim(self, lo: int, q: np.ndarray, final: bool) -> None:
@@ -595,7 +597,7 @@ class StaticDetector(AccelOnlyWindows):
     def _accumulate(self, d0: int, m: np.ndarray, final: bool) -> None:
         """Add kept frames [d0, d0 + len(m)) to running sums; finish the windows that close."""
         rows = self._view(d0, d0 + m.shape[0])
-        st, en = _edges(self._prev_m, m)
+        st, en = run_edges(self._prev_m, m)
         piece = self._piece
         if piece is not None and (en.shape[0] and en[0] == 0):
             self._finish(piece)  # closed right at the chunk boundary
@@ -608,15 +610,15 @@ class StaticDetector(AccelOnlyWindows):
             seg_pos = np.searchsorted(sel, seg_starts)
             seg_id = np.searchsorted(seg_starts, sel, side="right") - 1
             first_rows = rows[seg_starts]
-            t_first = first_rows[:, _T].copy()
-            g_ref = first_rows[:, _G].copy()
-            a_ref = first_rows[:, _A].copy()
-            bad_ref = first_rows[:, _VALID] == 0  # an invalid first frame may hold garbage
+            t_first = first_rows[:, COL_T].copy()
+            g_ref = first_rows[:, COL_G].copy()
+            a_ref = first_rows[:, COL_A].copy()
+            bad_ref = first_rows[:, COL_VALID] == 0  # an invalid first frame may hold garbage
             g_ref[bad_ref], a_ref[bad_ref] = self._g_ref, self._a_ref
             if cont:
                 t_first[0], g_ref[0], a_ref[0] = piece.t_first, piece.g_ref, piece.a_ref
             prev_in = np.concatenate(([self._prev_m], m[:-1]))[sel]
-            feats = _piece_features(
+            feats = piece_features(
                 rows[sel],
                 prev_in,
                 t_first[seg_id],
@@ -632,7 +634,7 @@ class StaticDetector(AccelOnlyWindows):
             cut = np.ones(sel.shape[0], dtype=bool)
             cut[1:] = (bid[1:] != bid[:-1]) | (seg_id[1:] != seg_id[:-1])
             g_pos = np.flatnonzero(cut)
-            g_sums = np.add.reduceat(feats[:, _BLOCK_FEATS], g_pos, axis=0)
+            g_sums = np.add.reduceat(feats[:, BLOCK_FEATS], g_pos, axis=0)
             g_len = np.diff(g_pos, append=sel.shape[0])
             g_of_seg = np.searchsorted(seg_id[g_pos], np.arange(seg_starts.shape[0] + 1))
             ends = np.concatenate((en, [m.shape[0]])) if m[-1] else en
@@ -640,20 +642,20 @@ class StaticDetector(AccelOnlyWindows):
                 last = d0 + int(ends[k]) - 1
                 if k == 0 and cont:
                     piece.sums = piece.sums + sums[0]
-                    piece.last, piece.t_last = last, float(rows[ends[k] - 1, _T])
+                    piece.last, piece.t_last = last, float(rows[ends[k] - 1, COL_T])
                 else:
-                    piece = _Piece(
+                    piece = Piece(
                         first=d0 + int(seg_starts[k]),
                         last=last,
                         t_first=float(t_first[k]),
-                        t_last=float(rows[ends[k] - 1, _T]),
+                        t_last=float(rows[ends[k] - 1, COL_T]),
                         g_ref=g_ref[k],
                         a_ref=a_ref[k],
                         sums=sums[k],
                     )
                 closes = k < seg_starts.shape[0] - 1 or not m[-1]
                 gs = slice(g_of_seg[k], g_of_seg[k + 1])
-                _add_blocks(piece, bid[g_pos[gs]], g_len[gs], g_sums[gs], B, still_open=not closes)
+                add_blocks(piece, bid[g_pos[gs]], g_len[gs], g_sums[gs], B, still_open=not closes)
                 if closes:
                     self._finish(piece)
                     piece = None
@@ -664,7 +666,7 @@ class StaticDetector(AccelOnlyWindows):
         if m.size:
             self._prev_m = bool(m[-1])
 
-    def _finish(self, piece: _Piece) -> None:
+    def _finish(self, piece: Piece) -> None:
         """Turn a closed trimmed run into a window, or count why it is rejected."""
         g = self._geom
         if piece.last - piece.first + 1 < g.required:
@@ -697,7 +699,9 @@ class StaticDetector(AccelOnlyWindows):
                 rate = (nt * stv - st * sv) / den * 3600.0  # degC/s -> degC/h
         t0 = self._t0
         std = np.sqrt(np.concatenate((var_g, var_a)))
-        sem = _window_sem(int(n), std, allan_sq, allan_terms, g.block) if self._own_sem else None
+        sem = (
+            allan_window_sem(int(n), std, allan_sq, allan_terms, g.block) if self._own_sem else None
+        )
         self._out.append(
             Window(
                 start_s=piece.t_first - t0,

@@ -1,7 +1,7 @@
 """The candidate effects of diagnose, each scored on top of the current model
-(:func:`_score`: delta BIC, the nominal F-test, the share of the misfit explained), their
+(:func:`score_candidates`: delta BIC, the nominal F-test, the share of the misfit explained), their
 family-wise p-values from a parametric bootstrap with the residuals' real noise correlation
-(:func:`_family_pvalues`), and which candidates share a signature (:func:`_confounding`). The
+(:func:`family_pvalues`), and which candidates share a signature (:func:`mark_confounding`). The
 rules are in the module doc of :mod:`recal.diagnose.effects`."""
 
 from __future__ import annotations
@@ -13,21 +13,30 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from recal.diagnose.fit import FIT_INFO_MIN, Fit, _fit, heldout_chi2_red
+from recal.diagnose.fit import FIT_INFO_MIN, Fit, fit_effects, heldout_chi2_red
 from recal.diagnose.hypotheses import NOISE, NoiseFit, noise_fit
 from recal.diagnose.noise_test import (
     NOISE_NULL_DRAWS,
     NOISE_NULL_MAX_RESIDUALS,
     noise_null_test,
 )
-from recal.diagnose.trust import _trade_off
+from recal.diagnose.shift import (
+    CORE_SHIFT_SIGMA,
+    CORRELATION_WARN,
+    SHIFT_WARN_SIGMA,
+    core_advice,
+    core_shift,
+    multiple_correlation,
+    shift_check,
+)
 from recal.errors import RecalInputError
 from recal.model.plugins import values_by_term
 from recal.model.positions import Positions
 from recal.model.terms import Term, catalogue_terms
-from recal.solve.calibrate import CalibrationOptions, CalibrationResult
 from recal.solve.observability import jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
+from recal.solve.result import CalibrationResult
 
 ALPHA = 0.01
 #: Share of the excess misfit by which another candidate must explain more to be named as the
@@ -165,7 +174,7 @@ CONFOUNDED = 0.7
 SAME = 0.9
 
 
-def _score(
+def score_candidates(
     current: Fit,
     base: CalibrationResult,
     opt: CalibrationOptions,
@@ -176,7 +185,7 @@ def _score(
 ) -> Candidate:
     cand = Candidate(term.name, term.explanation, identifiable=True, needs=frozenset(term.needs))
     try:
-        fit = _fit(base, opt, effects + [term.name], start=values_by_term(
+        fit = fit_effects(base, opt, effects + [term.name], start=values_by_term(
             current.problem.layout, current.theta))  # fmt: skip
     except RecalInputError as exc:
         msg, src = str(exc), f"{base.problem.positions.source}: "
@@ -272,9 +281,7 @@ def _span(J: np.ndarray, k: int) -> np.ndarray:
     return U[:, :k]
 
 
-def _family_pvalues(
-    current: Fit, scored: list[Candidate], n: int, rng: np.random.Generator
-) -> None:
+def family_pvalues(current: Fit, scored: list[Candidate], n: int, rng: np.random.Generator) -> None:
     """Family-wise p-values by a parametric bootstrap of the linearised fits (Westfall-Young
     min-p): noise with the residuals' real correlation (:func:`noise_correlation`) is drawn,
     every candidate's F statistic computed as diagnose computes it, and a candidate's
@@ -411,7 +418,7 @@ def _pair_advice(a: Candidate, b: Candidate) -> str:
     return "more orientations, or a second site latitude"
 
 
-def _confounding(ranked: list[Candidate]) -> None:
+def mark_confounding(ranked: list[Candidate]) -> None:
     """Correlation of the candidates' fitted signatures, evidence ratios and advice (module
     doc); replaces a hard cut on the BIC difference."""
     ok = [c for c in ranked if c.identifiable and c.signature is not None and c.delta_bic < 0]
@@ -435,3 +442,32 @@ def _confounding(ranked: list[Candidate]) -> None:
             )
             if abs(C[i, j]) >= SAME:
                 c.similar_to.append(o.effect)
+
+
+def _trade_off(cand: Candidate, current: Fit, fit: Fit, sl: slice) -> None:
+    """How far the effect moves the seed coefficients (in their current 1-sigma) and whether
+    it trades off with them in the extended model (module doc)."""
+    if current.sd is None or fit.cov is None:
+        return
+    names1 = fit.problem.layout.names
+    shifts = core_shift(current.problem.layout.names, current.theta,
+                         np.where(np.isfinite(current.sd), current.sd, np.nan), names1, fit.theta)  # fmt: skip
+    if not shifts:
+        return
+    cand.core_shift = shifts
+    cov = fit.cov
+    eff = np.arange(cov.shape[0])[sl]
+    name = next(iter(shifts))
+    j = names1.index(name)
+    corr = multiple_correlation(cov, j, eff)
+    cand.trade_off = {"coefficient": name, "shift_sigma": shifts[name], "correlation": corr}
+    if abs(shifts[name]) > CORE_SHIFT_SIGMA:
+        cand.trustworthy = False
+        cand.check = shift_check(cand.effect, cand.needs, name, shifts[name])
+    if abs(shifts[name]) >= SHIFT_WARN_SIGMA and abs(corr) >= CORRELATION_WARN:
+        cand.advice = core_advice(cand.needs, cand.effect)
+        cand.warning = (
+            f"adding {cand.effect} moves {name} by {abs(shifts[name]):.1f} sigma: they trade off "
+            f"in these positions (multiple correlation {corr:.2f}), so the fit is only as right as the "
+            f"effect's model; to separate them: {cand.advice}"
+        )

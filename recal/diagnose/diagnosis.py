@@ -1,5 +1,5 @@
-"""The result of diagnose: :class:`Diagnosis`, its model ladder (:func:`_rung`), its verdict
-(:func:`_conclude`) and the variables its final residual correlates with."""
+"""The result of diagnose: :class:`Diagnosis`, its model ladder (:func:`rung`), its verdict
+(:func:`conclude`) and the variables its final residual correlates with."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import numpy as np
 from scipy import stats
 
 from recal.diagnose.candidates import ALPHA, Candidate
-from recal.diagnose.fit import INDEXING, Fit, _finite, heldout_chi2_red, worst_windows
+from recal.diagnose.fit import INDEXING, Fit, finite_or_none, heldout_chi2_red, worst_windows
 from recal.diagnose.hypotheses import NoiseFit, describe
 from recal.model.plugins import site_context, values_by_term
-from recal.solve.calibrate import CalibrationResult
+from recal.solve.result import CalibrationResult
 
 
 @dataclass
@@ -76,8 +76,8 @@ class Diagnosis:
             "candidates": [c.to_json_dict() for c in self.candidates],
             "suggested_effects": self.suggested_effects,
             "baseline_effects": self.baseline_effects,
-            "chi2_red": _finite(self.chi2_red),
-            "chi2_red_with_suggested": _finite(self.final_chi2_red),
+            "chi2_red": finite_or_none(self.chi2_red),
+            "chi2_red_with_suggested": finite_or_none(self.final_chi2_red),
             "noise_known": self.baseline.problem.noise_known,
             "noise_model": self.baseline.noise_model or None,
             "method": "LM fits with independent windows and the baseline's weights; per model "
@@ -89,7 +89,7 @@ class Diagnosis:
         }
 
 
-def _rung(
+def rung(
     label: str, effect: str, fit: Fit, previous: Fit | None, n: int, noise: NoiseFit | None = None
 ) -> dict[str, Any]:
     """One step of the model ladder: chi2 ratio per invariant (RMS / noise floor), the change
@@ -106,16 +106,16 @@ def _rung(
         "model": label,
         "effect": effect,
         # no redundancy: the residual is zero by construction, so neither figure means anything
-        "chi2_red": _finite(fit.rss / (n - fit.rank)) if n > fit.rank else None,
+        "chi2_red": finite_or_none(fit.rss / (n - fit.rank)) if n > fit.rank else None,
         "rms_over_floor": ratio,
-        "delta_bic": None if step is None else _finite(step),
-        "heldout_chi2_red": _finite(heldout_chi2_red(fit)) if n > fit.rank else None,
+        "delta_bic": None if step is None else finite_or_none(step),
+        "heldout_chi2_red": finite_or_none(heldout_chi2_red(fit)) if n > fit.rank else None,
         "directions": fit.rank,
         "noise": describe(noise) if noise is not None else "",
     }
 
 
-def _conclude(d: Diagnosis, final: Fit, n: int, picked: Sequence[Candidate] = ()) -> None:
+def conclude(d: Diagnosis, final: Fit, n: int, picked: Sequence[Candidate] = ()) -> None:
     """The verdict: what explains the misfit (an effect, a wander, an independent excess, or
     nothing), what was rejected and by how much (recal.diagnose.hypotheses), or that the model
     still fails (and where)."""

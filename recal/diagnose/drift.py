@@ -497,7 +497,9 @@ def drift_test(inputs: DriftInputs, config: DriftConfig | None = None) -> DriftR
     return result
 
 
-def _parts(F: np.ndarray, Lp: np.ndarray, n: int, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def gain_parts(
+    F: np.ndarray, Lp: np.ndarray, n: int, tau: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """G K (T, D, D) and diag(I) (T, D) for a step at each ``tau`` seen by window ``n``.
 
     With whitened windows the stacked covariance is I + B B^T, B = C Lp; by Woodbury its inverse
@@ -516,8 +518,8 @@ def _score(
     S: np.ndarray, F: np.ndarray, Lp: np.ndarray, n: int, tau: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Score z (T, D) and information diag(I) (T, D) of a step in each coefficient at each
-    ``tau`` given windows 0..n, with the common coefficient error projected out (:func:`_parts`)."""
-    GK, info = _parts(F, Lp, n, tau)
+    ``tau`` given windows 0..n, with the common coefficient error projected out (:func:`gain_parts`)."""
+    GK, info = gain_parts(F, Lp, n, tau)
     z = (S[n + 1][None] - S[tau]) - GK @ S[n + 1]
     return z, info
 
@@ -537,7 +539,7 @@ def _scan(
     arg = np.zeros((P, M), int) if where else None
     for n in range(M):
         tau = np.arange(max(0, n - lookback + 1), n + 1)
-        GK, info = _parts(F, Lp, n, tau)
+        GK, info = gain_parts(F, Lp, n, tau)
         T = tau.size
         ok = seen & (info > 1e-12 * max(info.max(), 1e-300))
         inv = np.where(ok, 1.0 / np.where(ok, info, 1.0), 0.0).reshape(T * D)

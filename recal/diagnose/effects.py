@@ -70,40 +70,41 @@ from recal.diagnose.candidates import (  # noqa: F401 - re-exported
     NULL_DRAWS,
     SAME,
     Candidate,
-    _confounding,
-    _family_pvalues,
-    _score,
     against_noise,
     default_candidates,
+    family_pvalues,
+    mark_confounding,
     noise_correlation,
+    score_candidates,
 )
-from recal.diagnose.diagnosis import Diagnosis, _conclude, _rung
+from recal.diagnose.diagnosis import Diagnosis, conclude, rung
 from recal.diagnose.fit import (  # noqa: F401 - re-exported
     FIT_INFO_MIN,
     INDEXING,
     PER_POSITION,
     Fit,
-    _fit,
-    _invariant_rows,
     best_fit,
+    fit_effects,
     heldout_chi2_red,
+    invariant_rows,
     worst_windows,
 )
 from recal.diagnose.hypotheses import noise_fit
 from recal.diagnose.lookalikes import lookalike_check
-from recal.diagnose.trust import (  # noqa: F401 - re-exported
+from recal.diagnose.shift import (  # noqa: F401 - re-exported
     CORE_SHIFT_SIGMA,
     CORRELATION_WARN,
     DRIFT_NEEDS,
     SHIFT_CHECKS,
     SHIFT_WARN_SIGMA,
-    _trust,
-    effects_check,
 )
+from recal.diagnose.trust import effects_check, trust_diagnosis  # noqa: F401 - re-exported
 from recal.errors import RecalInputError
 from recal.model.plugins import values_by_term
 from recal.model.positions import Positions
-from recal.solve.calibrate import CalibrationOptions, CalibrationResult, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
+from recal.solve.result import CalibrationResult
 
 
 def diagnose(
@@ -132,7 +133,7 @@ def diagnose(
         pool.pop(name, None)
     n = base.problem.n_residuals
     notes: list[str] = []
-    fit0 = _fit(base, opt, chosen)
+    fit0 = fit_effects(base, opt, chosen)
     if fit0.degenerate or base.observability.verdict == "insufficient":
         fit0 = _rescue(base, opt, chosen, list(pool), fit0, notes)
     if fit0.rank != base.observability.rank and np.isfinite(base.chi2_red) and n > fit0.rank:
@@ -147,12 +148,13 @@ def diagnose(
     picked: list[Candidate] = []  # each suggestion as scored against the model it joined
     current = fit0
     noise0 = noise = noise_fit(current)
-    ladder = [_rung("baseline", "", current, None, n, noise)]
+    ladder = [rung("baseline", "", current, None, n, noise)]
     for round_ in range(max_rounds):
         scored = [
-            _score(current, base, opt, chosen + suggested, t, n, len(pool)) for t in pool.values()
+            score_candidates(current, base, opt, chosen + suggested, t, n, len(pool))
+            for t in pool.values()
         ]
-        _family_pvalues(current, scored, n, np.random.default_rng(opt.seed + round_))
+        family_pvalues(current, scored, n, np.random.default_rng(opt.seed + round_))
         against_noise(noise, scored, n, np.random.default_rng(opt.seed + 7 + round_))
         if round_ == 0:
             ranked = scored
@@ -165,16 +167,16 @@ def diagnose(
         start = values_by_term(current.problem.layout, current.theta)
         previous, current = current, best_fit(base, opt, chosen + suggested, start)
         noise = noise_fit(current)
-        ladder.append(_rung(f"+{best.effect}", best.effect, current, previous, n, noise))
+        ladder.append(rung(f"+{best.effect}", best.effect, current, previous, n, noise))
     ranked.sort(key=lambda c: (not c.identifiable, np.nan_to_num(c.delta_bic, nan=np.inf)))
     for c in ranked:  # for the disagreement note: who explains this misfit clearly better
         c.explained_better_by = next((o.effect for o in ranked if o.identifiable and
                                       o.explained_fraction > c.explained_fraction + BETTER), "")  # fmt: skip
-    _confounding(ranked)
+    mark_confounding(ranked)
     final_raw = current.problem.raw_residuals(current.theta[None])
     d = Diagnosis(
         baseline=calibrated,
-        invariants=_invariant_rows(fit0),
+        invariants=invariant_rows(fit0),
         candidates=ranked,
         suggested_effects=suggested,
         baseline_effects=chosen,
@@ -186,9 +188,9 @@ def diagnose(
         noise=noise0,
         final_noise=noise,
     )
-    _trust(d, fit0, current, picked)
+    trust_diagnosis(d, fit0, current, picked)
     lookalike_check(d, base, opt, chosen, current, picked)
-    _conclude(d, current, n, picked)
+    conclude(d, current, n, picked)
     return d
 
 
@@ -205,14 +207,14 @@ def _rescue(
     starts = [values_by_term(base.layout, base.theta_prior)]
     for name in pool:
         try:
-            f = _fit(
+            f = fit_effects(
                 base, opt, chosen + [name], start=values_by_term(base.layout, base.theta_prior)
             )
         except RecalInputError:
             continue
         if np.isfinite(f.rss) and not f.degenerate:
             starts.append(values_by_term(f.problem.layout, f.theta))
-    fits = [_fit(base, opt, chosen, start=s) for s in starts]
+    fits = [fit_effects(base, opt, chosen, start=s) for s in starts]
     good = [f for f in fits if np.isfinite(f.rss) and not f.degenerate]
     if good:
         notes.append(
@@ -222,7 +224,7 @@ def _rescue(
         return min(good, key=lambda f: f.rss)
     # The baseline model has no plausible optimum (only the degenerate valley): judge it where
     # the candidates' plausible fits put the seed coefficients, without the effect.
-    held = [_fit(base, opt, chosen, start=s, refit=False) for s in starts[1:]]
+    held = [fit_effects(base, opt, chosen, start=s, refit=False) for s in starts[1:]]
     held = [f for f in held if np.isfinite(f.rss) and not f.degenerate]
     if not held:
         notes.append("the baseline fit is degenerate (its rank falls at the solution) from "

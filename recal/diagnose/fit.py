@@ -1,6 +1,6 @@
 """One model fitted for diagnose: the baseline's positions, prior and residual weights with a
-set of effects added (:func:`_fit`), and where its misfit lies: per invariant
-(:func:`_invariant_rows`), per position and slew (:func:`worst_windows`), and how well it
+set of effects added (:func:`fit_effects`), and where its misfit lies: per invariant
+(:func:`invariant_rows`), per position and slew (:func:`worst_windows`), and how well it
 predicts the positions it did not see (:func:`heldout_chi2_red`)."""
 
 from __future__ import annotations
@@ -14,11 +14,12 @@ import numpy as np
 from recal.errors import RecalInputError
 from recal.model.error_model import ParameterLayout
 from recal.model.plugins import bind_context, values_by_term
-from recal.solve.calibrate import CalibrationOptions, CalibrationResult, build_models
+from recal.solve.calibrate import build_models
 from recal.solve.lm import covariance, solve_lm
 from recal.solve.observability import analyze, jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
-from recal.solve.result_json import UNITS
+from recal.solve.result import UNITS, CalibrationResult
 from recal.solve.slew_fit import blind_gyro, blind_gyro_models
 
 
@@ -42,7 +43,7 @@ class Fit:
         return self.problem.residuals(self.theta[None])[0]
 
 
-def _finite(v: float) -> float | None:
+def finite_or_none(v: float) -> float | None:
     """JSON has no NaN: an undefined figure is null."""
     return float(v) if np.isfinite(v) else None
 
@@ -54,7 +55,7 @@ def _finite(v: float) -> float | None:
 FIT_INFO_MIN = 0.1
 
 
-def _fit(
+def fit_effects(
     base: CalibrationResult,
     opt: CalibrationOptions,
     effects: Sequence[str],
@@ -125,9 +126,11 @@ def best_fit(
     far from the truth, and a fit from there that holds them (they stay below the fitted
     information) settles above the floor (accel.scale_temperature, 1e-4/degC over a 15 degC
     swing: chi2 172 from the baseline, 72 from the prior, on 63 degrees of freedom)."""
-    fits = [_fit(base, opt, effects, start=start)]
+    fits = [fit_effects(base, opt, effects, start=start)]
     try:
-        fits.append(_fit(base, opt, effects, start=values_by_term(base.layout, base.theta_prior)))
+        fits.append(
+            fit_effects(base, opt, effects, start=values_by_term(base.layout, base.theta_prior))
+        )
     except RecalInputError:
         pass
     good = [f for f in fits if np.isfinite(f.rss) and not f.degenerate]
@@ -138,7 +141,7 @@ def _structural_rank(problem: Problem, theta: np.ndarray, typical: np.ndarray) -
     return analyze(problem, theta, typical, info_min=0.0).rank
 
 
-def _invariant_rows(fit: Fit) -> list[dict[str, Any]]:
+def invariant_rows(fit: Fit) -> list[dict[str, Any]]:
     raw = fit.problem.raw_residuals(fit.theta[None])
     rows = []
     for n in fit.problem.invariant_names:

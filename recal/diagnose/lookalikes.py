@@ -31,11 +31,12 @@ from scipy import stats
 from recal.diagnose.candidates import ALPHA, Candidate
 from recal.diagnose.diagnosis import Diagnosis
 from recal.diagnose.fit import Fit, best_fit
-from recal.diagnose.trust import CORE_SHIFT_SIGMA, SHIFT_CHECKS, _core_shift
+from recal.diagnose.shift import CORE_SHIFT_SIGMA, SHIFT_CHECKS, core_shift
 from recal.errors import RecalInputError
 from recal.model.plugins import values_by_term
 from recal.model.terms import Context, Term, catalogue_terms
-from recal.solve.calibrate import CalibrationOptions, CalibrationResult
+from recal.solve.options import CalibrationOptions
+from recal.solve.result import CalibrationResult
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ def lookalike_check(
     k = max(final.rank - alt.rank, 1)
     p = float(stats.f.sf(extra / k / max(final.rss / dof, 1e-300), k, dof))
     sd = np.where(np.isfinite(final.sd), final.sd, np.nan)
-    shifts = _core_shift(final.problem.layout.names, final.theta, sd,
+    shifts = core_shift(final.problem.layout.names, final.theta, sd,
                          alt.problem.layout.names, alt.theta)  # fmt: skip
     top = next(iter(shifts), None)
     d.lookalike = {

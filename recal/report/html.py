@@ -15,7 +15,7 @@ import numpy as np
 
 from recal.diagnose.effects import Candidate, Diagnosis
 from recal.report.plots import AFTER, BEFORE, html_page
-from recal.solve.calibrate import CalibrationResult
+from recal.solve.result import CalibrationResult
 
 _TINY = 1e-300
 

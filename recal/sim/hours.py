@@ -29,7 +29,7 @@ from recal.model.terms import Term, catalogue_terms
 from recal.sim.simulate import NoiseSpec, TemperatureSpec, design_orientations, simulate_positions
 
 if TYPE_CHECKING:
-    from recal.solve.calibrate import CalibrationOptions
+    from recal.solve.options import CalibrationOptions
 
 #: 1-sigma change of each seed coefficient between the prior and the truth, as measured over the
 #: four sessions of ../shared/data/diagnose-hours (prior minus truth, RMS over axes and
@@ -86,7 +86,7 @@ class HoursSession:
         """The options ``recal diagnose FILE --prior PRIOR --latitude LAT [--plugin ...]``
         builds (service/cli/calibrate.py options_from_args): the command line's default
         ``--wander auto`` included, which CalibrationOptions alone does not default to."""
-        from recal.solve.calibrate import CalibrationOptions
+        from recal.solve.options import CalibrationOptions
 
         kw: dict[str, Any] = {
             "latitude_deg": self.latitude_deg,

@@ -21,30 +21,27 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from recal.detect.known_rotations import KnownRotations
-from recal.detect.slew_data import Slews
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.plugins import bind_context, plugin_file, values_by_term
 from recal.model.positions import Positions
 from recal.model.terms import Term, catalogue_terms
-from recal.solve import result_json
 from recal.solve.believable import physical_bounds, unbelievable
 from recal.solve.consider import consider_covariance
 from recal.solve.convergence import fixed_point, projected_start, swarm_convergence
 from recal.solve.earth_rate import (  # noqa: F401 - scale_noise_needed: re-exported
     MIN_EARTH_RATE_CONTRAST,
-    _earth_rate_invisible,
+    earth_rate_invisible,
     scale_noise_needed,
 )
 from recal.solve.lm import covariance, solve_lm
-from recal.solve.mcs import SWARM_METHODS, MCSResult, run_mcs, solver_for
+from recal.solve.mcs import SWARM_METHODS, run_mcs, solver_for
 from recal.solve.observability import (
     COMMON_ROTATION_REASON,
     INFO_MIN,
@@ -52,10 +49,11 @@ from recal.solve.observability import (
     ObservabilityReport,
     analyze,
 )
+from recal.solve.options import CalibrationOptions
 from recal.solve.phases import paper_phases, whitened_phase
-from recal.solve.prior import HeldUncertainty, _gyro_prior_sigma, _prior_uncertainty, describe_prior
+from recal.solve.prior import HeldUncertainty, describe_prior, gyro_prior_sigma, prior_uncertainty
 from recal.solve.problem import Problem
-from recal.solve.result_json import MC_KIND, MC_KIND_PAPER, UNITS  # noqa: F401 - re-exported, were defined here
+from recal.solve.result import MC_KIND, MC_KIND_PAPER, UNITS, CalibrationResult  # noqa: F401 - re-exported, were defined here
 from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, were defined here
     SLEW_EXCESS_SIGNIFICANCE,
     SLEW_GYRO_BIAS_TYPICAL_DPH,
@@ -64,125 +62,26 @@ from recal.solve.slew_fit import (  # noqa: F401 - the public ones re-exported, 
     SLEW_GYRO_SCALE_TYPICAL,
     SLEW_PRIOR_SLEWS,
     SlewExcess,
-    _information_shares,
-    _slews_see_earth_rate,
-    _turn_notes,
-    _usable_slews,
     blind_gyro,
     blind_gyro_models,
+    information_shares,
     slew_excess,
     slew_prior,
+    slews_see_earth_rate,
+    turn_notes,
+    usable_slews,
 )
 from recal.solve.start import data_prior, references
-from recal.solve.swarm import SwarmConfig
 from recal.solve.wander_fit import (  # noqa: F401 - WANDER_*: re-exported, were defined here
     WANDER_MIN_SPAN_S,
     WANDER_TEST,
-    _wander_note,
-    _with_wander,
+    refit_with_wander,
+    wander_note,
 )
 
 METHODS = ("lm",) + SWARM_METHODS
 #: The steps :func:`calibrate` reports to its ``progress`` callback with LM (one call each).
 LM_STEPS = ("set-up", "observability", "fit", "fixed point", "uncertainty")
-
-
-@dataclass(frozen=True)
-class CalibrationOptions:
-    """What to calibrate and how.
-
-    sensor: "gyro", "accel", "both" or None (every triad present in the positions).
-    method: "lm" (default), "nafsa", "safsa" or "oafsa".
-    mc_runs: Monte Carlo repetitions for swarm methods (seed: 100).
-    paper: run swarms as the seeds do (category phases in raw coordinates, literal CF,
-        Table 1 Visual); default is the whitened joint phase over observable directions.
-    polish: follow a swarm by LM from its mean.
-    effects: extra terms by catalogue name; plugin_terms: user Term objects.
-    """
-
-    sensor: str | None = None
-    method: str = "lm"
-    mc_runs: int = 100
-    seed: int = 0
-    latitude_deg: float = 45.0
-    height_m: float = 0.0
-    prior: CoefficientSet | None = None
-    effects: Sequence[str] = ()
-    plugin_terms: Sequence[Term] = ()
-    paper: bool = False
-    polish: bool = False
-    swarm_config: SwarmConfig | None = None
-    #: swarm cycles (each re-whitens the phase and, with slews, re-linearises them at the runs'
-    #: mean); 4: with slews 3 left the MC mean ~1 sigma from the minimum (benchmarks/bench_mcs_slews)
-    cycles: int = 4
-    indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
-    t0_c: float = 25.0
-    slews: Slews | None = None  # gyro increments between the windows (recal.detect.slews), or None
-    known_rotations: KnownRotations | None = None  # commanded rotations of some slews
-    #: declared closed turns: the 1-sigma, deg, of a slew that turns whole revolutions about the
-    #: vertical where Earth rate cannot check it (recal.detect.slews.turn_candidates); <= 0 (the
-    #: default): none declared, only turns checked by the Earth-rate headings are closed
-    turn_closure_sigma_deg: float = 0.0
-    #: bias wander between windows (recal.solve.wander): None (windows independent), "auto"
-    #: (estimated from the fit's residuals, kept when a likelihood-ratio test says so), or a
-    #: WanderModel (given, e.g. from recal noise)
-    wander: Any = None
-    #: refuse a design that cannot show scale and bias at the solution; diagnose turns it off:
-    #: a missing effect can drag the baseline fit there, and the candidates must still be tried
-    refuse_at_solution: bool = True
-    #: the fleet's ageing figures (:class:`recal.fleet.prior.FleetPrior`, issue 28): with
-    #: ``prior_age_months`` (months of service since the prior's calibration), a held
-    #: coefficient's 1-sigma adds the fleet's change over that time to the prior file's own, and
-    #: replaces the datasheet's typical change where the file has none
-    fleet_prior: Any = None
-    prior_age_months: float | None = None
-
-
-@dataclass
-class CalibrationResult:
-    coefficients: CoefficientSet
-    status: dict[str, np.ndarray]  # term name -> array of "estimated"/"held"
-    uncertainty: dict[str, np.ndarray]  # term name -> 1-sigma (NaN where held)
-    covariance: np.ndarray  # (D, D) Gauss-Newton covariance of the flat parameters
-    observability: ObservabilityReport
-    problem: Problem
-    theta: np.ndarray
-    theta_prior: np.ndarray
-    chi2_red: float
-    method: str
-    evaluations: int
-    wall_time_s: float
-    prior_source: str
-    mcs: MCSResult | None = None
-    notes: list[str] = field(default_factory=list)
-    #: the window noise's part of ``covariance`` alone (``covariance`` adds the held part's)
-    covariance_measurement: np.ndarray | None = None
-    held_uncertainty: HeldUncertainty | None = None
-    #: {"converged": bool, "reason": str | None, ...} (recal.solve.convergence)
-    convergence: dict[str, Any] = field(default_factory=dict)
-    #: what the windows' noise was taken to be: their own sems, and the bias wander between
-    #: them (recal.solve.wander) with the test that decided it (JSON-ready)
-    noise_model: dict[str, Any] = field(default_factory=dict)
-    #: the declared closed turns' 1-sigma, deg (CalibrationOptions.turn_closure_sigma_deg; 0: none)
-    turn_closure_declared_deg: float = 0.0
-
-    @property
-    def layout(self) -> ParameterLayout:
-        return self.problem.layout
-
-    @property
-    def terms(self) -> dict[str, Term]:
-        return {t.name: t for m in self.problem.models for t in m.terms}
-
-    def residual_summary(self) -> dict[str, Any]:
-        return result_json.residual_summary(self)
-
-    def uncertainty_kind(self) -> str:
-        """What the 1-sigma values mean, and which noise they come from."""
-        return result_json.uncertainty_kind(self)
-
-    def to_json_dict(self) -> dict[str, Any]:
-        return result_json.result_json(self)
 
 
 def build_models(
@@ -321,14 +220,14 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
     and the slews together, each weighted by its own noise: a MEMS gyro's Earth-rate
     information then carries little weight without any threshold deciding. Earth's turn over
     a slew is taken out or left in the noise by comparing the two error budgets
-    (:func:`_slews_see_earth_rate`). Without slews a gyro whose outputs do not show Earth rate
-    (:func:`_earth_rate_invisible`) is left out by default.
+    (:func:`slews_see_earth_rate`). Without slews a gyro whose outputs do not show Earth rate
+    (:func:`earth_rate_invisible`) is left out by default.
     """
     sensors = _resolve_sensors(positions, opt.sensor)
     notes: list[str] = []
-    slews = _usable_slews(positions, opt, notes) if positions.has_gyro else None
+    slews = usable_slews(positions, opt, notes) if positions.has_gyro else None
     prior_scale = opt.prior.values.get("gyro.scale") if opt.prior is not None else None
-    problem_gyro = _earth_rate_invisible(positions, prior_scale) if "gyro" in sensors else None
+    problem_gyro = earth_rate_invisible(positions, prior_scale) if "gyro" in sensors else None
     with_slews = slews is not None and positions.has_accel and "gyro" in sensors
     if with_slews and opt.sensor == "gyro":
         if problem_gyro:
@@ -381,7 +280,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
         # norm over Earth rate -- a gyro whose window means do not follow Earth rate
         # (problem_gyro: bias wander, or a MEMS whose output norm at rest is its bias) is
         # treated as blind to it even when its white noise alone would allow it
-        earth_rate = not problem_gyro and _slews_see_earth_rate(
+        earth_rate = not problem_gyro and slews_see_earth_rate(
             positions, prior_scale, opt.latitude_deg
         )
         blind = not earth_rate
@@ -396,7 +295,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
             if opt.prior is None:  # the gyro's start from the slews
                 theta0 = slew_prior(build(theta0), theta0)
         else:  # the Earth-rate heading check of closed turns: the gyro's prior 1-sigma
-            gyro_sigma = _gyro_prior_sigma(positions, layout, theta0, opt, start)
+            gyro_sigma = gyro_prior_sigma(positions, layout, theta0, opt, start)
     problem = build(theta0)
     typical = layout.typical(theta0)
     own = None  # the data-derived start's own 1-sigma (a blind gyro's start is the slews')
@@ -406,14 +305,14 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
             own[layout.model_slices()["gyro"]] = np.nan
     # the prior's 1-sigma: what a held coefficient carries, and which of two coefficients that
     # trade off is estimated (the one whose prior uncertainty shows more in the invariants)
-    held = _prior_uncertainty(positions, problem.layout, theta0, typical, opt, own)
+    held = prior_uncertainty(positions, problem.layout, theta0, typical, opt, own)
     first = None
     if slews is not None:
         notes.append(
             f"{len(slews)} slews integrated ({slews.sums.shape[1]} increments each, coning "
             f"included; {np.median(slews.duration_s):.3g} s median)"
         )
-        notes += _turn_notes(problem)
+        notes += turn_notes(problem)
         fit = slew_excess(problem, theta0, typical, held.sigma / typical, held.bar(layout, typical))
         excess, chi2_slews = fit.excess, fit.chi2_first
         if excess == 0 and fit.report is not None and fit.theta is not None:
@@ -439,7 +338,7 @@ def _set_up(positions: Positions, opt: CalibrationOptions) -> _SetUp:
                 "residual, estimated from their misfit, is added to their noise so each slew "
                 "carries the weight its scatter allows (recal diagnose lists the worst slews)"
             )
-        shares = _information_shares(problem, theta0, typical)
+        shares = information_shares(problem, theta0, typical)
         if shares:
             notes.append(shares)
     prior_source = describe_prior(layout, theta0, start.how, opt.prior,
@@ -612,12 +511,12 @@ def calibrate(
     # bias wander between the windows: their residuals share noise the closer they are in time
     noise_model: dict[str, Any] = {}
     if opt.wander not in (None, "none") and problem.noise_known and problem.window_invariants:
-        problem, theta, noise_model, more = _with_wander(
+        problem, theta, noise_model, more = refit_with_wander(
             problem, theta, theta0, typical, report, opt
         )
         evaluations += more
         if noise_model.get("wander"):
-            notes.append(_wander_note(noise_model["wander"]))
+            notes.append(wander_note(noise_model["wander"]))
     # held means held: a coefficient no estimated coordinate touches is the prior, bitwise
     theta = np.where(report.estimated, theta, theta0)
     T = typical[:, None] * report.basis

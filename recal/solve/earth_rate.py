@@ -1,6 +1,6 @@
 """Whether a gyro can see Earth rate in its still windows: the contrast of its outputs between
 positions against the window-mean noise (:data:`MIN_EARTH_RATE_CONTRAST`), why not and what
-would be needed (:func:`_earth_rate_invisible`), and the noise that pins its scale factors
+would be needed (:func:`earth_rate_invisible`), and the noise that pins its scale factors
 (:func:`scale_noise_needed`). :func:`recal.solve.calibrate` leaves a gyro out, or calibrates it
 from the slews, when it cannot."""
 
@@ -29,7 +29,7 @@ def scale_noise_needed(n_positions: int, relative: float = 1e-3) -> float:
     return relative * OMEGA_IE_DEG_H * np.sqrt(n_positions / 24.0)
 
 
-def _earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None) -> str | None:
+def earth_rate_invisible(positions: Positions, scale: np.ndarray | None = None) -> str | None:
     """Why Earth rate cannot calibrate this gyro, or None: the outputs must change with
     orientation well beyond the window-mean noise.
 

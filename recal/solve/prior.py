@@ -1,11 +1,10 @@
 """The prior of a calibration: what it is, true to its values (:func:`describe_prior`), and how
 uncertain: the 1-sigma a held coefficient carries into the covariance and the observability bar
-(:class:`HeldUncertainty`, :func:`_prior_uncertainty`; the defaults are in
+(:class:`HeldUncertainty`, :func:`prior_uncertainty`; the defaults are in
 :mod:`recal.solve.consider`)."""
 
 from __future__ import annotations
 
-import typing
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -15,12 +14,8 @@ from recal.model.error_model import ParameterLayout
 from recal.model.positions import Positions
 from recal.solve.consider import prior_sigma, sensor_class
 from recal.solve.earth_rate import MIN_EARTH_RATE_CONTRAST
+from recal.solve.options import CalibrationOptions
 from recal.solve.start import DataPrior
-
-# annotations only: recal.solve.calibrate imports this module (typing.TYPE_CHECKING, so that
-# recal.calibrate's deprecated * import, which takes this module's names, gets no TYPE_CHECKING)
-if typing.TYPE_CHECKING:
-    from recal.solve.calibrate import CalibrationOptions
 
 
 class HeldUncertainty(NamedTuple):
@@ -85,7 +80,7 @@ def describe_prior(
     return f"{source}" + (f"; terms it lacks from the data ({'; '.join(parts)})" if parts else "")
 
 
-def _gyro_prior_sigma(
+def gyro_prior_sigma(
     positions: Positions,
     layout: ParameterLayout,
     theta0: np.ndarray,
@@ -93,14 +88,14 @@ def _gyro_prior_sigma(
     start: DataPrior,
 ) -> dict[str, np.ndarray]:
     """The gyro's prior 1-sigma (bias deg/h, scale in its units) as the held coefficients get it
-    (:func:`_prior_uncertainty`), for the Earth-rate heading check of closed turns."""
+    (:func:`prior_uncertainty`), for the Earth-rate heading check of closed turns."""
     own = start.sigma if opt.prior is None and start.sigma.shape == theta0.shape else None
-    held = _prior_uncertainty(positions, layout, theta0, layout.typical(theta0), opt, own)
+    held = prior_uncertainty(positions, layout, theta0, layout.typical(theta0), opt, own)
     sl = layout.term_slices()
     return {n: held.sigma[sl[n]] for n in ("gyro.bias", "gyro.scale")}
 
 
-def _prior_uncertainty(
+def prior_uncertainty(
     positions: Positions,
     layout: ParameterLayout,
     theta0: np.ndarray,

@@ -73,7 +73,7 @@ INVARIANT_SENSORS = {
 #: Invariants that need a still gyro: rows of accelerometer-only windows are left out of them.
 GYRO_STATIC = frozenset({"gyro_norm", "dot"})
 #: Invariants whose residual is linear in the estimated inputs (no squared form in eq. 14).
-_LINEAR = frozenset({"dot", "slew", "rotation", "closure"})
+LINEAR_INVARIANTS = frozenset({"dot", "slew", "rotation", "closure"})
 
 
 @dataclass(frozen=True)
@@ -600,7 +600,7 @@ class Problem:
         """Seed eq. (13): |x_hat|^2 - ref^2 per position (P, M); the dot product stays linear."""
         vals = self._invariant_values(theta, squared=True)
         return {
-            n: v - (self.reference(n) if n in _LINEAR else self.reference(n) ** 2)
+            n: v - (self.reference(n) if n in LINEAR_INVARIANTS else self.reference(n) ** 2)
             for n, v in vals.items()
         }
 
@@ -619,7 +619,7 @@ class Problem:
         """Expected eq. (14) value from window noise alone, per invariant."""
         out = {}
         for n, s in self.sigma.items():
-            scale = 1.0 if n in _LINEAR else 2.0 * self.reference(n)
+            scale = 1.0 if n in LINEAR_INVARIANTS else 2.0 * self.reference(n)
             out[n] = float(np.sqrt(np.mean((scale * s) ** 2)))
         return out
 
@@ -668,7 +668,7 @@ class Problem:
         in the order of :meth:`residuals` (each N(0, 1) whitened residual's offset)."""
         parts = []
         for n in self.invariant_names:
-            scale = 1.0 if n in _LINEAR else 2.0 * self.reference(n)
+            scale = 1.0 if n in LINEAR_INVARIANTS else 2.0 * self.reference(n)
             parts.append(offsets[n] / (scale * self.sigma[n]))
         return np.concatenate(parts, axis=1)
 

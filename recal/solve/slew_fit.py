@@ -1,14 +1,13 @@
-"""The slews in a calibration: which slews it uses (:func:`_usable_slews`), a gyro blind to Earth
+"""The slews in a calibration: which slews it uses (:func:`usable_slews`), a gyro blind to Earth
 rate (a MEMS gyro) calibrated from them (its typical changes, :func:`blind_gyro_models`, and its
 start, :func:`slew_prior`), whether Earth's turn over a slew is taken out
-(:func:`_slews_see_earth_rate`), the slews' unmodelled error (:func:`slew_excess`), and what the
-still windows and the motion each tell about the gyro scale factors (:func:`_information_shares`).
+(:func:`slews_see_earth_rate`), the slews' unmodelled error (:func:`slew_excess`), and what the
+still windows and the motion each tell about the gyro scale factors (:func:`information_shares`).
 The slews themselves are integrated in :mod:`recal.detect.slews`; :func:`recal.solve.calibrate`
 puts them in its set-up."""
 
 from __future__ import annotations
 
-import typing
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import NamedTuple
@@ -23,13 +22,8 @@ from recal.model.positions import Positions
 from recal.model.reference import OMEGA_IE_DEG_H
 from recal.solve.lm import solve_lm
 from recal.solve.observability import ObservabilityReport, analyze, jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
-
-# annotations only: recal.solve.calibrate imports this module (typing.TYPE_CHECKING, so that
-# recal.calibrate's deprecated * import, which takes this module's names, gets no TYPE_CHECKING)
-if typing.TYPE_CHECKING:
-    from recal.solve.calibrate import CalibrationOptions
-
 
 #: Typical change of the bias of a gyro that cannot see Earth rate (a MEMS gyro calibrated from
 #: slews), deg/h: ten times Earth rate. Its turn-on bias changes by tens to thousands of deg/h,
@@ -52,7 +46,7 @@ SLEW_GYRO_MISALIGNMENT_TYPICAL = 1e-2
 SLEW_GYRO_G_SENSITIVITY_TYPICAL_DPH_PER_G = 0.01 * 3600.0
 
 
-def _usable_slews(positions: Positions, opt: CalibrationOptions, notes: list[str]) -> Slews | None:
+def usable_slews(positions: Positions, opt: CalibrationOptions, notes: list[str]) -> Slews | None:
     """The slews of ``opt`` when they belong to these positions, else None (with a note)."""
     slews = opt.slews
     if slews is None:
@@ -160,7 +154,7 @@ def blind_gyro(models: Sequence[Model]) -> bool:
     return bias is not None and min(bias.typical) >= SLEW_GYRO_BIAS_TYPICAL_DPH
 
 
-def _slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: float) -> bool:
+def slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: float) -> bool:
     """Whether Earth's turn over a slew is better taken out with the calibrated rest rate of its
     first window than left in the slew's noise budget: the window-mean gyro noise (deg/h, at the
     prior scale ``scale`` output/(deg/h), else the output noise over the median output norm in
@@ -241,7 +235,7 @@ def slew_excess(
     return SlewExcess(excess, chi2_first)
 
 
-def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
+def information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> str | None:
     """What the static windows (gyro norm, dot product: Earth rate) and the motion (slews,
     closed turns, known rotations) each tell about the gyro scale factors: their 1-sigma, ppm,
     from each alone and together (Fisher information at ``theta``, every other coefficient
@@ -275,7 +269,7 @@ def _information_shares(problem: Problem, theta: np.ndarray, typical: np.ndarray
     )
 
 
-def _turn_notes(problem: Problem) -> list[str]:
+def turn_notes(problem: Problem) -> list[str]:
     """One note per slew that integrates close to whole turns about the vertical: closed
     (checked by Earth rate, with the headings, or declared) or not, and why."""
     notes = []

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from recal.solve.problem import _LINEAR, Problem
+from recal.solve.problem import LINEAR_INVARIANTS, Problem
 
 #: Invariants that integrate the gyro over the slews (expensive, linearised here).
 MOTION_INVARIANTS = ("slew", "rotation", "closure")
@@ -83,7 +83,7 @@ def data_noise(problem: Problem, runs: int, rng: np.random.Generator) -> dict[st
     out, at = {}, 0
     for k in names:
         m = problem.n_of(k)
-        scale = 1.0 if k in _LINEAR else 2.0 * problem.reference(k)
+        scale = 1.0 if k in LINEAR_INVARIANTS else 2.0 * problem.reference(k)
         out[k] = scale * problem.sigma[k] * eps[:, at : at + m]
         at += m
     return out

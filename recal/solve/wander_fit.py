@@ -1,11 +1,11 @@
 """Bias wander in a calibration: the fit done again with the windows' bias wander in their
-covariance (:func:`_with_wander`), "auto" estimating it from the fit's residuals where the
+covariance (:func:`refit_with_wander`), "auto" estimating it from the fit's residuals where the
 session is long enough, and the note that says so. The wander model and its test are in
 :mod:`recal.solve.wander`; this is calibrate's glue to it."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -13,6 +13,7 @@ from recal.errors import RecalInputError
 from recal.solve.convergence import fixed_point
 from recal.solve.lm import solve_lm
 from recal.solve.observability import ObservabilityReport, jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
 from recal.solve.wander import WANDER_SIGNIFICANCE as WANDER_TEST
 from recal.solve.wander import (
@@ -24,10 +25,6 @@ from recal.solve.wander import (
     window_sessions,
     window_times,
 )
-
-if TYPE_CHECKING:  # annotations only: recal.solve.calibrate imports this module
-    from recal.solve.calibrate import CalibrationOptions
-
 
 #: "auto" looks for bias wander only where the windows span at least this long, s: over a
 #: session of minutes an excess misfit is model error (a warming MEMS drifts, a hand-turned
@@ -75,7 +72,7 @@ def carry_unproven(model: WanderModel, fits: list[WanderFit]) -> WanderModel:
     return WanderModel(triads, model.source, (*model.notes, note), frozenset(carried))
 
 
-def _with_wander(
+def refit_with_wander(
     problem: Problem,
     theta: np.ndarray,
     theta0: np.ndarray,
@@ -147,7 +144,7 @@ def _longest_session_span(t: np.ndarray, sessions: np.ndarray | None) -> float:
     return max(float(np.ptp(t[sessions == k])) for k in np.unique(sessions))
 
 
-def _wander_note(wander: dict[str, Any]) -> str:
+def wander_note(wander: dict[str, Any]) -> str:
     parts, excess, unproven = [], [], []
     for s in ("gyro", "accel"):
         if s in wander and wander[s].get("significant") is False:

@@ -13,7 +13,8 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from recal.solve.calibrate import CalibrationOptions, CalibrationResult
+    from recal.solve.options import CalibrationOptions
+    from recal.solve.result import CalibrationResult
 
 #: recal.solve.calibrate.METHODS, repeated here to keep parser construction light (a test checks it)
 METHODS = ("lm", "nafsa", "safsa", "oafsa")
@@ -167,7 +168,7 @@ def options_from_args(args: argparse.Namespace, positions=None) -> CalibrationOp
     exists) are what the side file is checked against."""
     from recal.errors import RecalInputError
     from recal.model.terms import catalogue_terms
-    from recal.solve.calibrate import CalibrationOptions
+    from recal.solve.options import CalibrationOptions
     from recal.solve.swarm import SwarmConfig
     from service.cli.common import load_coefficients, load_plugin, parse_effects
 

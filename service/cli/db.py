@@ -51,23 +51,23 @@ def _url(args: argparse.Namespace) -> str:
     raise CliInputError("no database: give --database URL or --config FILE.toml")
 
 
-def _open(args: argparse.Namespace, create: bool):  # -> Store
+def open_vessel_store(args: argparse.Namespace, create: bool):  # -> Store
     """The Store of the URL; a StoreError or an unusable SQLite path is bad input (exit 2)."""
     from pathlib import Path
 
     from service.cli.errors import CliInputError
     from service.db import Store, StoreError
-    from service.startup import _check_sqlite_folder, _sqlite_folder
+    from service.startup import check_sqlite_folder, sqlite_folder
 
     url = _url(args)
-    folder = _sqlite_folder(url)
+    folder = sqlite_folder(url)
     if folder is not None:
         from sqlalchemy.engine import make_url
 
         path = Path(make_url(url).database).absolute()
         if not create and not path.is_file():  # opening would create an empty file
             raise CliInputError(f"database file {path} does not exist")
-        _check_sqlite_folder(folder)
+        check_sqlite_folder(folder)
     try:
         return Store(url)
     except StoreError as exc:
@@ -92,7 +92,7 @@ def run_upgrade(args: argparse.Namespace) -> int:
     from service.cli.errors import CliInputError
     from service.db import StoreError
 
-    store = _open(args, create=True)
+    store = open_vessel_store(args, create=True)
     log = logging.getLogger("alembic.runtime.migration")  # "Running upgrade 0001 -> 0002, ..."
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("recal db: %(message)s"))
@@ -118,7 +118,7 @@ def run_current(args: argparse.Namespace) -> int:
     from service.cli.errors import CliInputError
     from service.db import StoreError
 
-    store = _open(args, create=False)
+    store = open_vessel_store(args, create=False)
     try:
         print(_describe(*store.recorded_schema()))
     except StoreError as exc:

@@ -74,7 +74,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from recal.errors import RecalInputError
-    from service.cli.positions import _config, _detect, _has_thresholds, _learn_noise_floor
+    from service.cli.positions import (
+        detect_file,
+        detector_config,
+        has_thresholds,
+        learn_noise_floor,
+    )
     from service.cli.recording import open_recording
 
     report_path = Path(args.report) if args.report else None
@@ -82,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
         raise RecalInputError(f"output folder {report_path.parent} does not exist")
     units = parse_units(args.units, args.format)
     recording = open_recording(args)
-    floor = None if _has_thresholds(args) else _learn_noise_floor(recording, args)
-    windows, report = _detect(recording, _config(args, recording, floor))
+    floor = None if has_thresholds(args) else learn_noise_floor(recording, args)
+    windows, report = detect_file(recording, detector_config(args, recording, floor))
     if not windows:
         rejected = ", ".join(f"{k} {v}" for k, v in report.rejected.items() if v) or "none"
         raise RecalInputError(

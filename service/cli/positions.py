@@ -132,7 +132,7 @@ def _flag(option) -> str | None:
 
 
 def add_detector_options(p: argparse.ArgumentParser) -> None:
-    """The static detector's settings (positions and noise share them; see :func:`_config`)."""
+    """The static detector's settings (positions and noise share them; see :func:`detector_config`)."""
     d = p.add_argument_group("detector")
     d.add_argument(
         "--init-still",
@@ -236,14 +236,14 @@ def run(args: argparse.Namespace) -> int:
         windows, report = _detect_hull(recording, rest, args, ship)
     else:
         floor = None
-        if not _has_thresholds(args):
-            floor = _learn_noise_floor(recording, args)
+        if not has_thresholds(args):
+            floor = learn_noise_floor(recording, args)
         envelope = None
         if report_path:
             from recal.report.positions import RecordingEnvelope
 
             envelope = RecordingEnvelope()  # bounded: a few thousand buckets, however long
-        windows, report = _detect(recording, _config(args, recording, floor), envelope)
+        windows, report = detect_file(recording, detector_config(args, recording, floor), envelope)
         if rest is not None:  # still in physics, not only in variance
             from recal.detect.rest import rest_filter
 
@@ -357,13 +357,13 @@ def _write_slews(path: Path, recording, windows, rate_hz: float | None) -> None:
     )
 
 
-def _has_thresholds(args: argparse.Namespace) -> bool:
+def has_thresholds(args: argparse.Namespace) -> bool:
     return args.init_still is not None or (
         args.accel_threshold is not None and args.gyro_threshold is not None
     )
 
 
-def _config(args: argparse.Namespace, recording, floor):
+def detector_config(args: argparse.Namespace, recording, floor):
     """The detector's settings: what the user gave; recal.detect.static's defaults for the rest."""
     from recal.detect.static_config import DetectorConfig
 
@@ -465,7 +465,7 @@ def _hint_hull(windows) -> None:
         )
 
 
-def _learn_noise_floor(recording, args: argparse.Namespace):
+def learn_noise_floor(recording, args: argparse.Namespace):
     """Pass 1: the moving-variance floor of the whole recording (recal.detect.static)."""
     from recal.detect.floor import NoiseFloorEstimator
 
@@ -477,7 +477,7 @@ def _learn_noise_floor(recording, args: argparse.Namespace):
     return estimator.result()
 
 
-def _detect(recording, config, envelope=None):
+def detect_file(recording, config, envelope=None):
     """Pass 2: stream the recording through the incremental detector (and into the report's
     envelope when one is given)."""
     from recal.detect.static_detector import StaticDetector

@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.cli.db import _open
+    from service.cli.db import open_vessel_store
     from service.cli.errors import CliInputError
     from service.config import load_settings
     from service.store.errors import StoreError
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliInputError(f"{args.config} has no [sync] section (url, unit, token): nothing "
                             "to send to")  # fmt: skip
     args.database = None
-    store = _open(args, create=False)
+    store = open_vessel_store(args, create=False)
     client = SyncThread.from_settings(store, settings.sync, backoff_cap_s=10.0)
     t0 = time.monotonic()
     try:

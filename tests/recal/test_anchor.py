@@ -22,7 +22,8 @@ from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.simulate import NoiseSpec
 from recal.sim.vessel import SeaState, VesselSpec, random_hull_unit, simulate_vessel
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 RATE_HZ = 20.0
 HOLDS = 16

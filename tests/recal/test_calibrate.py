@@ -8,7 +8,8 @@ from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.terms import MISALIGNMENT_NAMES, catalogue_terms
 from recal.sim.simulate import NoiseSpec, TemperatureSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 SYM_PAIRS = [("Exz", "Eyz"), ("Exy", "Ezy"), ("Eyx", "Ezx")]
 

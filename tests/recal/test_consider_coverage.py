@@ -15,7 +15,8 @@ import pytest
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 SEEDS = 40
 #: The prior file's 1-sigma (scale factors relative)

@@ -9,9 +9,10 @@ import pytest
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.convergence import FALSE_REJECTION, LM_TOLERANCE_SIGMA, mean_test
 from recal.solve.nafsa import NafsaConfig
+from recal.solve.options import CalibrationOptions
 
 LAT = 30.0
 

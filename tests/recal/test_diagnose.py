@@ -10,7 +10,7 @@ from recal.model.coefficients import CoefficientSet
 from recal.model.terms import catalogue_terms
 from recal.report.html import diagnosis_html
 from recal.sim.simulate import TemperatureSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions
+from recal.solve.options import CalibrationOptions
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 

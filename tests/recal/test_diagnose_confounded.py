@@ -18,7 +18,8 @@ from recal.model.plugins import hidden_plugin
 from recal.model.terms import catalogue_terms
 from recal.report.html import diagnosis_html
 from recal.sim.simulate import TemperatureSpec, design_orientations, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main
 from service.gate import GateConfig, gate

@@ -14,7 +14,7 @@ from recal.model.plugins import hidden_plugin
 from recal.model.terms import catalogue_terms
 from recal.report.html import diagnosis_html
 from recal.sim.simulate import TemperatureSpec, design_orientations, simulate_positions
-from recal.solve.calibrate import CalibrationOptions
+from recal.solve.options import CalibrationOptions
 from service.cli.common import load_plugin
 from service.cli.diagnose import format_diagnosis
 from service.cli.main import main

@@ -24,7 +24,7 @@ import pytest
 
 from recal.diagnose.effects import diagnose
 from recal.model.coefficients import CoefficientSet
-from recal.solve.calibrate import CalibrationOptions
+from recal.solve.options import CalibrationOptions
 from service.cli.calibrate import options_from_args
 from service.cli.main import build_parser
 

@@ -13,7 +13,7 @@ import recal.diagnose.candidates as candidates_module
 from recal.diagnose.effects import diagnose
 from recal.model.coefficients import read_coefficients
 from recal.model.positions import Positions
-from recal.solve.calibrate import CalibrationOptions
+from recal.solve.options import CalibrationOptions
 from recal.solve.wander import correlation_times, tau_floor_s
 
 

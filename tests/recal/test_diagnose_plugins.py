@@ -13,7 +13,8 @@ from recal.model.coefficients import CoefficientSet
 from recal.model.plugins import hidden_plugin, site_context, true_site_context
 from recal.report.html import diagnosis_html
 from recal.sim.simulate import design_orientations, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.cli.common import load_plugin
 from service.cli.main import main
 

@@ -19,7 +19,8 @@ from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 SEEDS = range(20)
 LAT = 45.0

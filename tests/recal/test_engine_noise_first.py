@@ -10,8 +10,9 @@ from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import GYRO_SEM_COLUMNS, GYRO_STD_COLUMNS, Positions
 from recal.sim.simulate import NoiseSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.mcs import run_mcs
+from recal.solve.options import CalibrationOptions
 
 
 def _without(pos: Positions, suffix: str) -> Positions:

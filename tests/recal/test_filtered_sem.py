@@ -28,7 +28,7 @@ import pytest
 from recal.detect.hull import HullConfig, _parabolic_kernel, detect_hull
 from recal.detect.noise import allan_sums, block_sums, standard_errors
 from recal.detect.rest import RestReference
-from recal.detect.static_sums import _window_sem
+from recal.detect.static_sums import allan_window_sem
 from recal.detect.window_sem import long_run_variance, weighted_mean_sem
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
@@ -159,7 +159,7 @@ def test_still_window_sem_for_filtered_noise() -> None:
         for win in x.reshape(count, n, 3):
             std = win.std(axis=0, ddof=1)
             sq, terms = allan_sums([block_sums(win, block)], block)
-            ratio.append(_window_sem(n, std, sq, terms, block) * math.sqrt(n))  # true: 1
+            ratio.append(allan_window_sem(n, std, sq, terms, block) * math.sqrt(n))  # true: 1
             before.append(standard_errors(np.array([n]), std[None], [(sq, terms)], block)[0])
         ratio = np.array(ratio)
         # the first Allan level's block (0.1 s) is not quite long against a 25 Hz filter's
@@ -173,7 +173,7 @@ def test_still_window_sem_for_filtered_noise() -> None:
         std = win.std(axis=0, ddof=1)
         sq, terms = allan_sums([block_sums(win, block)], block)
         was = standard_errors(np.array([n]), std[None], [(sq, terms)], block)[0]
-        same += int(np.array_equal(_window_sem(n, std, sq, terms, block), was))
+        same += int(np.array_equal(allan_window_sem(n, std, sq, terms, block), was))
     assert same >= count - 1, same
 
 

@@ -18,7 +18,8 @@ from recal.nav.heading import (
     vertical_from_specific_force,
 )
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 
 def test_an_east_bias_of_0p01_deg_h_at_45_deg_turns_the_heading_0p054_deg() -> None:

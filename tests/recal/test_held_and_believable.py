@@ -21,7 +21,8 @@ from recal.model.error_model import Model, ParameterLayout
 from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.sim.simulate import NoiseSpec, simulate_positions
 from recal.solve.believable import unbelievable
-from recal.solve.calibrate import LM_STEPS, CalibrationOptions, calibrate
+from recal.solve.calibrate import LM_STEPS, calibrate
+from recal.solve.options import CalibrationOptions
 from recal.solve.start import common_start, data_prior, references
 from service.cli.main import main
 

@@ -12,7 +12,8 @@ from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.capture_sim import kvh_like_truth
 
 LAT = 45.0

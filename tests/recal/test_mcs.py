@@ -5,7 +5,8 @@ import pytest
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,8 @@ import pytest
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from recal.solve.surrogate import SurrogateProblem, data_noise
 from service.capture_sim import kvh_like_truth
 

@@ -11,8 +11,9 @@ from recal.model.error_model import Model, ParameterLayout
 from recal.model.positions import Positions
 from recal.model.reference import normal_gravity_g
 from recal.sim.simulate import simulate_positions, truth_model
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.observability import INFO_MIN, ROTATION_REASON, analyze, jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
 
 LAT = 45.0

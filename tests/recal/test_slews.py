@@ -26,8 +26,9 @@ from recal.model.error_model import ParameterLayout
 from recal.model.reference import OMEGA_IE_RAD_S
 from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.sim.simulate import NoiseSpec
-from recal.solve.calibrate import CalibrationOptions, build_models, calibrate
+from recal.solve.calibrate import build_models, calibrate
 from recal.solve.observability import COMMON_ROTATION_REASON
+from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
 
 QUIET = NoiseSpec(arw_deg_rt_h=0.0, vrw_ug_rt_hz=0.0)

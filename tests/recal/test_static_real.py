@@ -20,7 +20,8 @@ from recal.errors import RecalInputError
 from recal.model.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS, Positions
 from recal.sim.session import Session, gauss_markov, simulate_session
 from recal.sim.simulate import NoiseSpec
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.capture_sim import Damage, kvh_like_truth, session_to_kvh
 
 FOG = NoiseSpec(arw_deg_rt_h=5e-4, vrw_ug_rt_hz=20.0)

@@ -22,7 +22,8 @@ from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews
 from recal.sim.simulate import NoiseSpec
 from recal.sim.vessel import SeaState, Segment, VesselSpec, simulate_vessel
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 
 LAT = 45.0
 KVH_NOISE = NoiseSpec(arw_deg_rt_h=0.012, vrw_ug_rt_hz=20.0)

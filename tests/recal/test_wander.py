@@ -13,7 +13,8 @@ import pytest
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import NoiseSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from recal.solve.wander import TriadWander, WanderModel, correlation, whitener
 
 TRUTH = CoefficientSet.seed_truth()

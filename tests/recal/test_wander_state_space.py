@@ -11,8 +11,9 @@ import pytest
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import NoiseSpec, simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
 from recal.solve.observability import jacobian
+from recal.solve.options import CalibrationOptions
 from recal.solve.wander import (
     SIGMA_CARRIED_DELTA,
     SIGMA_UPPER_DELTA,

@@ -22,7 +22,8 @@ from sqlalchemy import create_engine, text
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationResult, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.result import CalibrationResult
 from service.db import Base, CalibrationRecord, Store
 
 

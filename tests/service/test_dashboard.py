@@ -7,7 +7,8 @@ from fastapi.testclient import TestClient
 
 from recal.model.positions import Positions
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.api import create_app
 from service.capture_sim import kvh_like_truth
 from service.dashboard import plotly_js

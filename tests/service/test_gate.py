@@ -10,7 +10,9 @@ import pytest
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, CalibrationResult, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
+from recal.solve.result import CalibrationResult
 from service.db import CalibrationRecord
 from service.gate import GateConfig, gate
 

@@ -17,7 +17,8 @@ from recal.nav.ins_error import (
 )
 from recal.nav.navigation import NMI_M
 from recal.sim.simulate import simulate_positions
-from recal.solve.calibrate import CalibrationOptions, calibrate
+from recal.solve.calibrate import calibrate
+from recal.solve.options import CalibrationOptions
 from service.db import CalibrationRecord
 from service.gate import GateConfig
 from service.recalibration import calibration_job, navigation_impact_of

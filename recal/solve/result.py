@@ -1,19 +1,23 @@
-"""What a calibration reports: the residuals of each invariant before and after the fit
-(:func:`residual_summary`), what its 1-sigma values mean (:func:`uncertainty_kind`) and the
-JSON of a :class:`recal.solve.calibrate.CalibrationResult` (:func:`result_json`; the result's
-methods of the same names call these)."""
+"""What a calibration answers: :class:`CalibrationResult`, with the residuals of each
+invariant before and after the fit (:func:`residual_summary`), what its 1-sigma values mean
+(:func:`uncertainty_kind`) and its JSON (:func:`result_json`; the result's methods of the same
+names call these). The type and its JSON live together so that neither imports the other."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from recal.model.coefficients import CoefficientSet, layout_like
+from recal.model.error_model import ParameterLayout
 from recal.model.reference import OMEGA_IE_DEG_H
-
-if TYPE_CHECKING:  # annotations only: recal.solve.calibrate imports this module
-    from recal.solve.calibrate import CalibrationResult
+from recal.model.terms import Term
+from recal.solve.mcs import MCSResult
+from recal.solve.observability import ObservabilityReport
+from recal.solve.prior import HeldUncertainty
+from recal.solve.problem import Problem
 
 #: The unit of each invariant's residuals (the JSON's residuals.<invariant>.unit).
 UNITS = {"gyro_norm": "deg/h", "accel_norm": "g", "dot": "(deg/h)*g", "slew": "rad",
@@ -31,6 +35,53 @@ MC_KIND_PAPER = (
     "spread over the Monte Carlo runs on the same data: solver repeatability, not measurement "
     "uncertainty (see 'uncertainty')"
 )
+
+
+@dataclass
+class CalibrationResult:
+    coefficients: CoefficientSet
+    status: dict[str, np.ndarray]  # term name -> array of "estimated"/"held"
+    uncertainty: dict[str, np.ndarray]  # term name -> 1-sigma (NaN where held)
+    covariance: np.ndarray  # (D, D) Gauss-Newton covariance of the flat parameters
+    observability: ObservabilityReport
+    problem: Problem
+    theta: np.ndarray
+    theta_prior: np.ndarray
+    chi2_red: float
+    method: str
+    evaluations: int
+    wall_time_s: float
+    prior_source: str
+    mcs: MCSResult | None = None
+    notes: list[str] = field(default_factory=list)
+    #: the window noise's part of ``covariance`` alone (``covariance`` adds the held part's)
+    covariance_measurement: np.ndarray | None = None
+    held_uncertainty: HeldUncertainty | None = None
+    #: {"converged": bool, "reason": str | None, ...} (recal.solve.convergence)
+    convergence: dict[str, Any] = field(default_factory=dict)
+    #: what the windows' noise was taken to be: their own sems, and the bias wander between
+    #: them (recal.solve.wander) with the test that decided it (JSON-ready)
+    noise_model: dict[str, Any] = field(default_factory=dict)
+    #: the declared closed turns' 1-sigma, deg (CalibrationOptions.turn_closure_sigma_deg; 0: none)
+    turn_closure_declared_deg: float = 0.0
+
+    @property
+    def layout(self) -> ParameterLayout:
+        return self.problem.layout
+
+    @property
+    def terms(self) -> dict[str, Term]:
+        return {t.name: t for m in self.problem.models for t in m.terms}
+
+    def residual_summary(self) -> dict[str, Any]:
+        return residual_summary(self)
+
+    def uncertainty_kind(self) -> str:
+        """What the 1-sigma values mean, and which noise they come from."""
+        return uncertainty_kind(self)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return result_json(self)
 
 
 def residual_summary(result: CalibrationResult) -> dict[str, Any]:
