@@ -421,9 +421,14 @@ UNIT_COUNTS = """
     UPDATE fleet_units SET
       n_versions = (SELECT count(*) FROM fleet_versions v WHERE v.unit_id = fleet_units.id),
       n_windows = (SELECT count(*) FROM fleet_windows w WHERE w.unit_id = fleet_units.id),
-      current_version = (SELECT max(v.vessel_id) FROM fleet_versions v
-                         WHERE v.unit_id = fleet_units.id AND v.accepted)
-    WHERE id BETWEEN %s AND %s"""
+      current_version = (SELECT v.vessel_id FROM fleet_versions v
+                         WHERE v.unit_id = fleet_units.id AND v.accepted
+                         ORDER BY v.at DESC, v.vessel_id DESC LIMIT 1),
+      current_at = (SELECT v.at FROM fleet_versions v
+                    WHERE v.unit_id = fleet_units.id AND v.accepted
+                    ORDER BY v.at DESC, v.vessel_id DESC LIMIT 1),
+      current_instance = '', instance = ''
+    WHERE id BETWEEN %s AND %s"""  # as ingest keeps them (the newest accepted by time)
 
 
 def bulk_load(url: str, fleet: Fleet, units: list[UnitPlan], chunk_days: int) -> dict[str, Any]:
