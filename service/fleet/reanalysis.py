@@ -166,8 +166,12 @@ def connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
             "run with --workers 1 and no --scheduler"
         ) from None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)  # fmt: skip
+        import warnings
+
+        with warnings.catch_warnings():  # its health server on another port when 8787 is taken
+            warnings.filterwarnings("ignore", "Port .* is already in use", UserWarning)
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None)  # fmt: skip
         return Client(cluster), cluster
     try:
         client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
