@@ -42,7 +42,10 @@ def test_a_new_unit_fetches_its_models_prior_once_per_version(tmp_path, seeded) 
     assert served.json()["model"] == "KVH-1750"
     # a unit with no accepted version yet changes nothing the prior learns from
     assert served.headers["X-Fleet-Prior-Stale"] == "false"
-    assert seeded.get("admin-token-0123456789abcdef", "/fleet/prior").status_code == 422
+    # the administrator has no model of its own
+    assert seeded.get("admin-token-0123456789abcdef", "/fleet/prior").status_code == 404
+    # a unit's view: the model's figures, and of the outliers none but itself (issue 37)
+    assert served.json()["outliers"] == []
     client = _client(tmp_path, seeded, NEW_UNIT, token)
     try:
         assert client.step() == 60.0  # the outbox is empty: the prior is fetched
