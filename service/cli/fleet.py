@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from service.cli.calibrate import METHODS
-from service.cli.serve import _SETTINGS, _SettingsHelpFormatter
+from service.cli.serve import SETTINGS_MARK, SettingsHelpFormatter
 
 _CONFIG_HELP = (
     "the shore's TOML settings: database_url, [api] host, port, token (the administrator's); "
@@ -27,7 +27,7 @@ _CONFIG_HELP = (
 )
 
 
-class _ShoreHelpFormatter(_SettingsHelpFormatter):
+class _ShoreHelpFormatter(SettingsHelpFormatter):
     settings_cls = "service.fleet.config:ShoreSettings"
 
 
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="upgrade the shore's schema and serve its API (POST /fleet/ingest, GET /fleet/...)",
         description="Upgrade the shore's database schema, then serve its HTTP API until "
         "SIGINT/SIGTERM.",
-        epilog=_SETTINGS,
+        epilog=SETTINGS_MARK,
         formatter_class=_ShoreHelpFormatter,
     )
     q.add_argument("--config", required=True, metavar="FILE.toml", help=_CONFIG_HELP)

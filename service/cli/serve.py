@@ -7,7 +7,7 @@ from typing import Any
 
 #: Stands for the settings listing in the epilog until the help is shown: building it imports
 #: pydantic, which ``recal --help`` and the other commands should not pay for.
-_SETTINGS = "\0settings\0"
+SETTINGS_MARK = "\0settings\0"
 _HEADER = "configuration settings"
 
 
@@ -18,8 +18,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Run the daemon described by a TOML config: upgrade the database schema, "
         "read the IMU, store its static windows, recalibrate on schedule, gate and publish the "
         "coefficients, serve the HTTP API. Stops cleanly on SIGINT/SIGTERM.",
-        epilog=_SETTINGS,
-        formatter_class=_SettingsHelpFormatter,
+        epilog=SETTINGS_MARK,
+        formatter_class=SettingsHelpFormatter,
     )
     p.add_argument("--config", required=True, metavar="FILE.toml",
                    help="the settings (listed below); RECAL_* environment variables override "
@@ -30,13 +30,13 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-class _SettingsHelpFormatter(argparse.HelpFormatter):
+class SettingsHelpFormatter(argparse.HelpFormatter):
     """Fills in the settings listing and keeps its layout (argparse would rewrap it)."""
 
     settings_cls: Any = None  # None: the daemon's (service.config.Settings)
 
     def add_text(self, text: str | None) -> None:
-        if text == _SETTINGS:
+        if text == SETTINGS_MARK:
             text = settings_help(self._width, self._settings_cls())
         super().add_text(text)
 

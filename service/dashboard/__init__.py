@@ -30,7 +30,7 @@ CSP = (
     "img-src 'self' data:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
     "frame-ancestors 'none'; form-action 'none'"
 )
-_PAGE_HEADERS = {
+PAGE_HEADERS = {
     "Content-Security-Policy": CSP,
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "no-referrer",
@@ -54,7 +54,7 @@ def mount_dashboard(app: FastAPI, store: Store) -> None:
 
     @app.get("/", include_in_schema=False)
     def dashboard() -> HTMLResponse:
-        return HTMLResponse(page, headers=_PAGE_HEADERS)
+        return HTMLResponse(page, headers=PAGE_HEADERS)
 
     @app.get("/dashboard/plotly.min.js", include_in_schema=False)
     def plotly_asset() -> FileResponse:

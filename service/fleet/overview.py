@@ -30,7 +30,7 @@ from sqlalchemy.orm import aliased
 
 from service.fleet.priors import FleetPriors
 from service.fleet.schema import EventRow, IngestRow, UnitRow, VersionRow
-from service.fleet.store import FleetStore, _time
+from service.fleet.store import FleetStore, iso_time
 
 #: Days of traffic in a row's ``bytes_per_day``.
 LINK_DAYS = 7
@@ -169,13 +169,13 @@ def overview(
             "windows": n_windows or 0,
             "current_version": cur_id,
             "current_instance": cur_instance,
-            "current_created_at": _time(cur_at),
+            "current_created_at": iso_time(cur_at),
             "age_days": None if cur_at is None else round(_age_days(now, cur_at), 2),
             "heading_error_deg_rms": _number(cur_heading),
             "rejected": {
                 "count": n_rejected or 0,
                 "last_version": rej_id,
-                "last_at": _time(rej_at),
+                "last_at": iso_time(rej_at),
                 "last_reasons": [str(r) for r in rej_reasons]
                 if isinstance(rej_reasons, list)
                 else [],
@@ -195,7 +195,7 @@ def overview(
         rows.append(row)
     rows.sort(key=lambda r: (_rank(r["attention"]), r["unit"]))
     return {
-        "generated_at": _time(now),
+        "generated_at": iso_time(now),
         "units": rows,
         "totals": _totals(rows),
         "models": {
@@ -244,7 +244,7 @@ def _drift_state(
     at, data, instance = latest
     data = data if isinstance(data, dict) else {}
     inner = data.get("data") if isinstance(data.get("data"), dict) else {}
-    out.update(at=_time(at), statistic=_number(inner.get("statistic")),
+    out.update(at=iso_time(at), statistic=_number(inner.get("statistic")),
                threshold=_number(inner.get("threshold")), suspect=inner.get("suspect"),
                version=inner.get("version"))  # fmt: skip
     if inner.get("alarm_window") is None:
@@ -272,7 +272,7 @@ def _link(
     state = "never" if contact is None else ("stale" if hours > STALE_HOURS else "up")
     return {
         "state": state,
-        "last_contact": _time(contact),
+        "last_contact": iso_time(contact),
         "hours_since_contact": hours,
         "bytes_per_day": per_day,
         "bytes_7d": sum(d["bytes"] for d in per_day),

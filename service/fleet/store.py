@@ -30,7 +30,6 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.db import StoreError, _as_utc, _one_line
 from service.fleet.batch import Batch, IncomingRow, content_digest
 from service.fleet.schema import (
     KINDS,
@@ -41,7 +40,9 @@ from service.fleet.schema import (
     UnitRow,
     VersionRow,
 )
+from service.store.codec import as_utc
 from service.store.engine import make_engine
+from service.store.errors import StoreError, one_line
 
 #: A unit's serial: what ``recal fleet add-unit`` accepts.
 SERIAL = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_SERIAL - 1}}}")
@@ -107,7 +108,7 @@ class FleetStore:
             # the vessel Store's connection rules: SQLite in WAL, writers BEGIN IMMEDIATE
             self._engine, self._lock = make_engine(parsed, connect_timeout_s)
         except (NoSuchModuleError, ImportError) as exc:
-            raise StoreError(f"cannot use database URL {self.url}: {_one_line(exc)}") from None
+            raise StoreError(f"cannot use database URL {self.url}: {one_line(exc)}") from None
         self._read = sessionmaker(self._engine, expire_on_commit=False)
         self._write = sessionmaker(
             self._engine.execution_options(recal_write=True), expire_on_commit=False
@@ -130,7 +131,7 @@ class FleetStore:
             except StoreError:
                 raise
             except SQLAlchemyError as exc:
-                raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+                raise StoreError(f"database {self.url}: {one_line(exc)}") from exc
 
     # ---- schema -------------------------------------------------------------------------
     def create_schema(self) -> None:
@@ -152,9 +153,9 @@ class FleetStore:
                 self._require_known(conn)
                 command.upgrade(alembic_config(conn), "head")
         except SQLAlchemyError as exc:
-            raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+            raise StoreError(f"database {self.url}: {one_line(exc)}") from exc
         except CommandError as exc:
-            raise StoreError(f"database {self.url}: migration failed: {_one_line(exc)}") from exc
+            raise StoreError(f"database {self.url}: migration failed: {one_line(exc)}") from exc
 
     def schema_revision(self) -> str | None:
         """The shore revision recorded (None before :meth:`create_schema`)."""
@@ -162,7 +163,7 @@ class FleetStore:
             with self._lock, self._engine.connect() as conn:
                 found = self._recorded(conn)
         except SQLAlchemyError as exc:
-            raise StoreError(f"database {self.url}: {_one_line(exc)}") from exc
+            raise StoreError(f"database {self.url}: {one_line(exc)}") from exc
         return ",".join(found) or None
 
     def _recorded(self, conn: Any) -> list[str]:
@@ -379,7 +380,7 @@ class FleetStore:
                 "windows": u.n_windows or 0,
                 "current_version": u.current_version,
                 "current_instance": u.current_instance,
-                "last_contact": _time(u.last_contact),
+                "last_contact": iso_time(u.last_contact),
                 "instance": u.instance,
                 "conflicts": u.n_conflicts or 0,
             }
@@ -413,7 +414,7 @@ class FleetStore:
             stored = {kind: s.scalar(select(func.count()).where(table.unit_id == unit.id)) or 0
                       for kind, table in KINDS.items()}  # fmt: skip
             per_day = s.execute(link).all()
-        out["created_at"] = _time(created)
+        out["created_at"] = iso_time(created)
         out["rows"] = stored
         out["conflict_rows"] = self.conflicts(unit, limit=CONFLICTS_SHOWN)
         out["link"] = [
@@ -436,8 +437,8 @@ class FleetStore:
         with self._tx() as s:
             found = s.scalars(query).all()
         return [
-            {"kind": c.kind, "instance": c.instance, "id": c.vessel_id, "at": _time(c.at),
-             "received_at": _time(c.received_at), "digest": c.digest,
+            {"kind": c.kind, "instance": c.instance, "id": c.vessel_id, "at": iso_time(c.at),
+             "received_at": iso_time(c.received_at), "digest": c.digest,
              "stored_digest": c.stored_digest, "data": c.data}
             for c in found
         ]  # fmt: skip
@@ -526,11 +527,11 @@ def _between(query: Any, table: Any, since: datetime | None, until: datetime | N
     return query
 
 
-def _time(value: datetime | None) -> str | None:
+def iso_time(value: datetime | None) -> str | None:
     """ISO 8601 UTC with a Z, as the vessel writes times."""
     if value is None:
         return None
-    return _as_utc(value).isoformat().replace("+00:00", "Z")
+    return as_utc(value).isoformat().replace("+00:00", "Z")
 
 
 def _out(kind: str, row: Any) -> dict[str, Any]:
@@ -539,15 +540,15 @@ def _out(kind: str, row: Any) -> dict[str, Any]:
         return {
             "version": row.vessel_id,
             "instance": row.instance,
-            "created_at": _time(row.at),
+            "created_at": iso_time(row.at),
             "accepted": row.accepted,
             "trigger": row.trigger,
             "method": row.method,
-            "received_at": _time(row.received_at),
+            "received_at": iso_time(row.received_at),
             "document": row.data,
         }
-    out = {"id": row.vessel_id, "instance": row.instance, "at": _time(row.at),
-           "received_at": _time(row.received_at)}  # fmt: skip
+    out = {"id": row.vessel_id, "instance": row.instance, "at": iso_time(row.at),
+           "received_at": iso_time(row.received_at)}  # fmt: skip
     if kind == "event":
         out["kind"] = row.kind
     return {**out, "data": row.data}

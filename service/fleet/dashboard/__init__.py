@@ -21,7 +21,7 @@ from pathlib import Path
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
-from service.dashboard import _PAGE_HEADERS, STATIC, plotly_js
+from service.dashboard import PAGE_HEADERS, STATIC, plotly_js
 
 FLEET_STATIC = Path(str(resources.files(__package__) / "static"))
 #: The page's own files, and the vessel dashboard's it reuses.
@@ -42,11 +42,11 @@ def mount_fleet_dashboard(app: FastAPI) -> None:
 
     @app.get("/fleet/dashboard", include_in_schema=False)
     def dashboard() -> HTMLResponse:
-        return HTMLResponse(page, headers=_PAGE_HEADERS)
+        return HTMLResponse(page, headers=PAGE_HEADERS)
 
     @app.get("/fleet/dashboard/reanalysis", include_in_schema=False)
     def reanalysis() -> HTMLResponse:
-        return HTMLResponse(reanalysis_page, headers=_PAGE_HEADERS)
+        return HTMLResponse(reanalysis_page, headers=PAGE_HEADERS)
 
     @app.get("/fleet/dashboard/reanalysis.json", include_in_schema=False)
     def reanalysis_json(request: Request) -> FileResponse:
