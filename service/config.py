@@ -671,7 +671,7 @@ class Settings(BaseSettings):
     @classmethod
     def _no_unknown_keys(cls, data: Any) -> Any:
         if isinstance(data, Mapping):
-            _check_keys(cls, data, section=None)
+            check_keys(cls, data, section=None)
         return data
 
     @model_validator(mode="after")
@@ -767,7 +767,7 @@ def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:
     return cls(**{**given, **extra})
 
 
-def _check_keys(model: type[BaseModel], data: Mapping[str, Any], section: str | None) -> None:
+def check_keys(model: type[BaseModel], data: Mapping[str, Any], section: str | None) -> None:
     """Raise ValueError naming the first key of ``data`` that ``model`` (or one of its section
     models, recursively) does not define."""
     fields = model.model_fields
@@ -779,7 +779,7 @@ def _check_keys(model: type[BaseModel], data: Mapping[str, Any], section: str | 
             )
         sub = fields[key].annotation
         if isinstance(value, Mapping) and isinstance(sub, type) and issubclass(sub, BaseModel):
-            _check_keys(sub, value, f"{section}.{key}" if section else key)
+            check_keys(sub, value, f"{section}.{key}" if section else key)
 
 
 def _env_hint(section: str | None, key: str) -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import zlib
 from dataclasses import dataclass, field
@@ -87,7 +88,7 @@ def read_batch(body: bytes, encoding: str | None, max_bytes: int) -> Batch:
     """The checked batch of a request body; :class:`BatchError` for anything wrong in it."""
     raw = decompress(body, encoding, max_bytes)
     try:
-        doc = json.loads(raw, parse_constant=_no_constant)
+        doc = json.loads(raw, parse_constant=_no_constant, parse_float=_finite_float)
     except (ValueError, RecursionError) as exc:
         raise BatchError(422, f"body is not JSON: {exc}") from None
     if not isinstance(doc, dict):
@@ -230,3 +231,12 @@ _COLUMNS = {
 
 def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
+
+
+def _finite_float(text: str) -> float:
+    """A JSON number as a float, refused when it overflows (``1e400`` would be infinity, which
+    no column, digest or JSON answer can hold)."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text[:32]} is out of range for a number")
+    return value

@@ -33,7 +33,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from service.config import ApiSettings, Section, _check_keys, is_loopback, load_toml_settings
+from service.config import ApiSettings, Section, check_keys, is_loopback, load_toml_settings
 
 log = logging.getLogger("recal.fleet")
 
@@ -169,7 +169,7 @@ class ShoreSettings(BaseSettings):
     @classmethod
     def _no_unknown_keys(cls, data: Any) -> Any:
         if isinstance(data, dict):
-            _check_keys(cls, data, section=None)
+            check_keys(cls, data, section=None)
         return data
 
     @classmethod

@@ -131,6 +131,7 @@ def test_bodies_that_are_not_a_batch(shore, units, wire) -> None:
         (gzip.compress(b"[1, 2]"), True, 422, "JSON object"),
         (gzip.compress(good.replace(b'"format": 1', b'"format": 2')), True, 422, "format"),
         (gzip.compress(good.replace(b"0.01", b"NaN")), True, 422, "NaN"),
+        (gzip.compress(good.replace(b"0.01", b"1e400")), True, 422, "out of range"),  # inf
         (b"x" * (65 * 1024), True, 413, "over"),  # compressed body over the limit
         (gzip.compress(b" " * (1 << 20) + good), True, 413, "decompressed"),  # a small bomb
     ]
