@@ -69,8 +69,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from recal import CoefficientSet, simulate_fleet, simulate_positions  # noqa: E402
-from recal.fleet.history import MONTH_DAYS, _flat, flat_version, is_relative  # noqa: E402
-from service.fleet.batch import read_batch  # noqa: E402
+from recal.fleet.history import MONTH_DAYS, flat_section, flat_version, is_relative  # noqa: E402
+from service.fleet.batch import overview_columns, read_batch  # noqa: E402
 from service.fleet.priors import coefficient_names  # noqa: E402
 from service.fleet.reanalysis import flat_names  # noqa: E402
 from service.fleet.store import FleetStore, Unit, token_hash  # noqa: E402
@@ -129,9 +129,9 @@ class Fleet:
         self.template = json.loads(TEMPLATE.read_text())
         coeffs = self.template["document"]["coefficients"]
         self.names = [n for n in flat_names(coeffs)
-                      if np.isfinite(_flat(coeffs.get("uncertainty") or {}, [n])[0])]  # fmt: skip
-        nominal = np.array(_flat(coeffs, self.names))
-        sigma = np.array(_flat(coeffs["uncertainty"], self.names))
+                      if np.isfinite(flat_section(coeffs.get("uncertainty") or {}, [n])[0])]  # fmt: skip
+        nominal = np.array(flat_section(coeffs, self.names))
+        sigma = np.array(flat_section(coeffs["uncertainty"], self.names))
         rel = np.array([is_relative(n) for n in self.names])
         rng = np.random.default_rng(seed)
         rates_ = np.where(rel, sigma / np.abs(nominal), sigma) * rng.uniform(0.3, 3.0, len(nominal))
@@ -420,6 +420,8 @@ SECONDARY = {  # dropped during the bulk load, built after it
 UNIT_COUNTS = """
     UPDATE fleet_units SET
       n_versions = (SELECT count(*) FROM fleet_versions v WHERE v.unit_id = fleet_units.id),
+      n_rejected = (SELECT count(*) FROM fleet_versions v
+                    WHERE v.unit_id = fleet_units.id AND NOT v.accepted),
       n_windows = (SELECT count(*) FROM fleet_windows w WHERE w.unit_id = fleet_units.id),
       current_version = (SELECT v.vessel_id FROM fleet_versions v
                          WHERE v.unit_id = fleet_units.id AND v.accepted
@@ -528,14 +530,17 @@ def bulk_load(url: str, fleet: Fleet, units: list[UnitPlan], chunk_days: int) ->
         t1 = time.perf_counter()
         with conn.cursor().copy(
             "COPY fleet_versions (unit_id, vessel_id, at, received_at, data, accepted, trigger,"
-            " method, flat) FROM STDIN"
+            " method, flat, heading_error_deg_rms, reasons) FROM STDIN"
         ) as cp:
             for u in units:
                 for number, at, ok, text in u.versions:
                     doc = json.loads(text)
                     flat = json.dumps(flat_version(doc["document"], coefficient_names()))
+                    shown = overview_columns(doc)
+                    reasons = None if shown["reasons"] is None else json.dumps(shown["reasons"])
                     cp.write_row((u.index + 1, number, at, at + timedelta(hours=1), text, ok,
-                                  doc["trigger"], doc["method"], flat))  # fmt: skip
+                                  doc["trigger"], doc["method"], flat,
+                                  shown["heading_error_deg_rms"], reasons))  # fmt: skip
                     counts["version"] += 1
         t_versions = time.perf_counter() - t1
         t2 = time.perf_counter()
@@ -715,17 +720,134 @@ def load_versions(url: str, fleet: Fleet) -> None:
         t0 = time.perf_counter()
         with conn.cursor().copy(
             "COPY fleet_versions (unit_id, vessel_id, at, received_at, data, accepted, trigger,"
-            " method, flat) FROM STDIN"
+            " method, flat, heading_error_deg_rms, reasons) FROM STDIN"
         ) as cp:
             for u in fleet.units:
                 for number, at, ok, text in u.versions:
                     doc = json.loads(text)
                     flat = json.dumps(flat_version(doc["document"], coefficient_names()))
+                    shown = overview_columns(doc)
+                    reasons = None if shown["reasons"] is None else json.dumps(shown["reasons"])
                     cp.write_row((u.index + 1, number, at, at + timedelta(hours=1), text, ok,
-                                  doc["trigger"], doc["method"], flat))  # fmt: skip
+                                  doc["trigger"], doc["method"], flat,
+                                  shown["heading_error_deg_rms"], reasons))  # fmt: skip
         conn.execute(UNIT_COUNTS, (1, len(fleet.units)))
         conn.execute("VACUUM ANALYZE")
     print(f"versions loaded by COPY in {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def load_overview(url: str, fleet: Fleet) -> None:
+    """What ``GET /fleet/overview`` reads, at the fleet's full depth (``--overview``): the units
+    and their versions (COPY of the documents, as ``load_versions``), a drift evaluation per unit
+    and day (the newest is the row's drift state; the daemon's other 19 events of a day share
+    the index and are not read) and the ingest log (a batch every 4 hours: the link's last days
+    and the backlog of the last batch). Windows and slews are not loaded: the overview reads
+    only their count, kept on the unit's row."""
+    import psycopg
+
+    load_versions(url, fleet)
+    t0 = time.perf_counter()
+    drift = json.dumps(_event_templates()[0][2])
+    p = {"days": fleet.days, "n": len(fleet.units), "start": START.isoformat(), "drift": drift,
+         "b": fleet.rates.batches}  # fmt: skip
+    day = "(%(start)s::timestamptz + d * interval '1 day')"
+    with psycopg.connect(psycopg_url(url), autocommit=True) as conn:
+        events = conn.execute(f"""
+            INSERT INTO fleet_events (unit_id, vessel_id, at, received_at, data, kind)
+            SELECT u, d * 20 + 1, t, t + interval '1 hour',
+                   jsonb_build_object('kind', 'drift', 'message', 'steady',
+                     'data', %(drift)s::jsonb || jsonb_build_object(
+                        'statistic', round((random() * 10)::numeric, 4),
+                        'alarm_window', CASE WHEN random() < 0.02 THEN 30 END),
+                     'created_at', to_char(t AT TIME ZONE 'UTC', 'YYYY-MM-DD"T"HH24:MI:SS"Z"')),
+                   'drift'
+            FROM generate_series(0, %(days)s::int - 1) d, generate_series(1, %(n)s::int) u,
+                 LATERAL (SELECT {day} + random() * interval '1 day' AS t) tt
+            ORDER BY d, u""", p).rowcount  # fmt: skip
+        log = conn.execute(f"""
+            INSERT INTO fleet_ingest_log (unit_id, at, compressed_bytes, rows, stored, backlog)
+            SELECT u, {day} + (b + 1) * interval '1 day' / %(b)s::int,
+                   3000 + (random() * 30000)::int, 8, 8, (random() * 40)::int
+            FROM generate_series(0, %(days)s::int - 1) d, generate_series(1, %(n)s::int) u,
+                 generate_series(0, %(b)s::int - 1) b""", p).rowcount  # fmt: skip
+        conn.execute("UPDATE fleet_units SET last_contact = %s",
+                     (START + timedelta(days=fleet.days),))  # fmt: skip
+        conn.execute("VACUUM ANALYZE")
+    print(f"drift events {events:,} and ingest log {log:,} rows loaded in "
+          f"{time.perf_counter() - t0:.0f} s", flush=True)  # fmt: skip
+
+
+#: The overview before migration 0008 (reading the version documents): ``--overview``'s "before".
+OVERVIEW_BEFORE = "ef908de"
+
+
+def overview_before() -> Any:
+    """service/fleet/overview.py as it was at OVERVIEW_BEFORE, loaded as a module."""
+    import types
+
+    text = subprocess.run(["git", "show", f"{OVERVIEW_BEFORE}:service/fleet/overview.py"],
+                          cwd=ROOT, check=True, capture_output=True, text=True).stdout  # fmt: skip
+    module = types.ModuleType("overview_before")
+    exec(compile(text, f"overview.py@{OVERVIEW_BEFORE}", "exec"), module.__dict__)  # noqa: S102
+    return module
+
+
+def overview_timing(url: str, runs: int) -> None:
+    """``GET /fleet/overview`` through the app (FastAPI's TestClient: the route, its JSON
+    encoding, no network) with the overview before migration 0008 and after, alternately
+    ``runs`` times each after one warm-up call each; first, the two answers compared at the
+    same ``now``, and migration 0008 (adding and filling the columns) timed on these rows."""
+    import hashlib
+
+    from alembic import command
+    from fastapi.testclient import TestClient
+
+    import service.fleet.api as api
+    from service.fleet.config import ShoreApiSettings
+    from service.fleet.migrations import alembic_config
+    from service.fleet.overview import overview as after
+    from service.fleet.priors import FleetPriors
+
+    store = FleetStore(url)
+    with store._engine.connect() as conn, conn.begin():
+        command.downgrade(alembic_config(conn), "0007")
+    t0 = time.perf_counter()
+    store.create_schema()
+    print(f"migration 0008 (add and fill the overview's columns): "
+          f"{time.perf_counter() - t0:.1f} s", flush=True)  # fmt: skip
+    with store._engine.connect() as conn, conn.begin():  # as after a bulk load
+        conn.exec_driver_sql("ANALYZE fleet_versions; ANALYZE fleet_units")
+    before = overview_before().overview
+    priors = FleetPriors(store)
+    priors.current(list(MODELS))  # computed once and stored, as a running shore has them
+    now = datetime.now(UTC)
+    same = before(store, priors, now=now) == after(store, priors, now=now)
+    print(f"the same answer before and after: {same}", flush=True)
+    settings = ShoreApiSettings(token_sha256=hashlib.sha256(ADMIN_TOKEN.encode()).hexdigest())
+    times: dict[str, list[float]] = {"before": [], "after": []}
+    size = 0
+    with TestClient(api.create_app(store, settings)) as client:
+        headers = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+        for i in range(runs + 1):
+            for name, function in (("before", before), ("after", after)):
+                api.fleet_overview = function
+                t0 = time.perf_counter()
+                answer = client.get("/fleet/overview", headers=headers)
+                took = time.perf_counter() - t0
+                answer.raise_for_status()
+                size = len(answer.content)
+                if i:  # the first of each warms the caches
+                    times[name].append(took)
+    api.fleet_overview = after
+    load = os.getloadavg()
+    print(f"GET /fleet/overview ({size / 1e6:.1f} MB), {runs} runs each, alternately, load "
+          f"average {load[0]:.2f}; target p95 <= 300 ms:", flush=True)  # fmt: skip
+    for name, label in (("before", "before (the documents)"), ("after", "after (0008's columns)")):
+        med, p95, worst = stats(times[name])
+        verdict = "PASS" if p95 <= 0.3 else "MISS"
+        print(f"  {label:28s} median {med * 1e3:7.1f} ms  p95 {p95 * 1e3:7.1f} ms  "
+              f"max {worst * 1e3:7.1f} ms  {verdict}", flush=True)  # fmt: skip
+    store.close()
 
 
 def prior_from_documents(store: FleetStore, models: list[str]) -> dict[str, dict[str, Any]]:
@@ -843,6 +965,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra", action="store_true",
                     help="also /fleet/overview and /fleet/prior")  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="4 units x 60 days, 3 runs a query")
+    ap.add_argument("--overview", type=int, default=0, metavar="RUNS",
+                    help="only what the overview reads: time GET /fleet/overview RUNS times "
+                         "before migration 0008 and after")  # fmt: skip
     ap.add_argument("--prior", type=int, default=0, metavar="RUNS",
                     help="only the versions: time the fleet prior's recomputation RUNS times "
                          "from the documents and from fleet_versions.flat")  # fmt: skip
@@ -854,6 +979,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet: {args.units} units x {args.years:g} years; load average "
           f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}", flush=True)  # fmt: skip
     fleet = Fleet(args.units, args.years)
+    if args.overview:
+        with database(args.database_url, args.keep) as url:
+            if not args.skip_load:
+                for u in fleet.units:
+                    fleet.plan(u)
+                FleetStore(url).create_schema()
+                load_overview(url, fleet)
+            overview_timing(url, args.overview)
+        return 0
     if args.prior:
         with database(args.database_url, args.keep) as url:
             for u in fleet.units:

@@ -209,3 +209,13 @@ def test_no_module_imports_itself_in_a_circle() -> None:
 def test_the_cycle_finder_finds_a_circle() -> None:
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_private_name_is_imported_from_another_module() -> None:
+    """A name with a leading underscore is its module's own; one that another module needs is
+    part of an interface and is named as one. The benchmarks are held to it too."""
+    modules = _project_modules()
+    scripts = sorted((ROOT / "benchmarks").glob("*.py"))
+    bad = [(_rel(p), f"{m}.{n}") for p in [*modules.values(), *scripts]
+           for m, n in _edges(p, modules)[1]]  # fmt: skip
+    assert not bad, bad

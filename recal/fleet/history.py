@@ -15,6 +15,7 @@ divided by the earlier version's value, as the terms' ``relative_typical`` says.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -141,8 +142,8 @@ class VersionTable:
         histories = {}
         for unit, rows in versions.items():
             months = [row[0].timestamp() / 86400.0 / MONTH_DAYS for row in rows]
-            values = [_flat(row[1].get("coefficients") or {}, names) for row in rows]
-            sigma = [_flat(row[1].get("uncertainty") or {}, names) for row in rows]
+            values = [flat_section(row[1].get("coefficients") or {}, names) for row in rows]
+            sigma = [flat_section(row[1].get("uncertainty") or {}, names) for row in rows]
             histories[unit] = (months, np.reshape(values, (-1, len(names))),
                                np.reshape(sigma, (-1, len(names))), _accepted(rows))  # fmt: skip
         return cls.from_histories(names, histories)
@@ -172,7 +173,7 @@ def flat_version(document: Mapping[str, Any], names: Sequence[str]) -> dict[str,
     out = {}
     for section in ("coefficients", "uncertainty"):
         found = document.get(section) if isinstance(document, Mapping) else None
-        flat = _flat(found if isinstance(found, Mapping) else {}, names)
+        flat = flat_section(found if isinstance(found, Mapping) else {}, names)
         out[section] = {n: v for n, v in zip(names, flat, strict=True) if np.isfinite(v)}
     return out
 
@@ -188,17 +189,33 @@ def _by_name(section: Any, names: Sequence[str]) -> list[float]:
     return [float(section.get(n, np.nan)) for n in names]
 
 
-def _flat(section: Mapping[str, Any], names: Sequence[str]) -> list[float]:
-    """Section 5 layout (``{"gyro": {"scale": [..], "misalignment": {..}}}``) by flat name."""
+def flat_section(section: Mapping[str, Any], names: Sequence[str]) -> list[float]:
+    """Section 5 layout (``{"gyro": {"scale": [..], "misalignment": {..}}}``) by flat name; NaN
+    where a name is absent or its value is not a finite number. A document off that layout (a
+    vessel's bug, or a crafted batch: ``{"gyro": 5}``) gives NaN, never an exception: the shore
+    reads what units send."""
     axis = {"x": 0, "y": 1, "z": 2}
     out = []
     for name in names:
         sensor, key, param = name.split(".", 2)
-        entry = (section.get(sensor) or {}).get(key)
+        group = section.get(sensor)
+        entry = group.get(key) if isinstance(group, Mapping) else None
         leaf = None
         if isinstance(entry, Mapping):
             leaf = entry.get(param)
         elif isinstance(entry, list | tuple) and param[-1:] in axis and len(entry) == 3:
             leaf = entry[axis[param[-1]]]
-        out.append(float(leaf) if isinstance(leaf, int | float) else np.nan)
+        out.append(_number(leaf))
     return out
+
+
+def _number(value: Any) -> float:
+    """A JSON number as a finite float, else NaN (a boolean is no number; an integer beyond a
+    double's range overflows to NaN, not an error)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return np.nan
+    try:
+        out = float(value)
+    except OverflowError:
+        return np.nan
+    return out if math.isfinite(out) else np.nan

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from recal import CoefficientSet, simulate_fleet, simulate_positions
-from recal.fleet.history import MONTH_DAYS, _flat
+from recal.fleet.history import MONTH_DAYS, flat_section
 from service.fleet.batch import read_batch
 from service.fleet.migrations import alembic_config
 from service.fleet.reanalysis import flat_names, reanalyse
@@ -65,8 +65,8 @@ def _document(coeffs: dict, names, values, sigma) -> dict:
 
 def test_reanalysis_flags_the_fast_ageing_unit_on_one_or_two_processes(fleet_store, fleet_url):
     coeffs = CoefficientSet.seed_truth().to_json_dict()
-    names = [n for n in flat_names(coeffs) if np.isfinite(_flat(coeffs, [n])[0])]
-    nominal = np.array(_flat(coeffs, names))
+    names = [n for n in flat_names(coeffs) if np.isfinite(flat_section(coeffs, [n])[0])]
+    nominal = np.array(flat_section(coeffs, names))
     sigma = np.full(len(names), 1e-5)
     rates = np.full(len(names), 1e-5)
     fleet = simulate_fleet(names, nominal, rates, sigma, units=8, years=3.0, outliers=1,

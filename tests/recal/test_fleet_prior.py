@@ -295,3 +295,19 @@ def test_held_coefficients_cover_the_truth_with_the_fleet_prior(case: str) -> No
     assert doc["fleet_prior"] == {"model": "KVH-1750", "version": 3,
                                   "created_at": "2026-11-27T00:00:00Z", "months": 16.0}  # fmt: skip
     assert "fleet prior KVH-1750 v3 over 16 months" in doc["prior_sigma_source"]["accel.quadratic"]
+
+
+def test_a_version_document_off_the_layout_reads_as_missing_not_as_an_error() -> None:
+    """The shore reads what units send: a crafted or broken document gives no value, never a
+    500 (schemathesis found ``{"coefficients": {"gyro": 5}}`` with a unit's token)."""
+    from recal.fleet.history import flat_section, flat_version
+
+    names = ["gyro.scale.Kx", "gyro.misalignment.Exy", "accel.bias.bz"]
+    assert flat_version({"coefficients": {"gyro": 5}}, names) == {
+        "coefficients": {}, "uncertainty": {}
+    }  # fmt: skip
+    odd = {"gyro": {"scale": [10**400, True, 1.0], "misalignment": {"Exy": "x"}},
+           "accel": {"bias": [0.0, 0.0, 1e-3]}}  # fmt: skip
+    values = flat_section(odd, names)
+    assert np.isnan(values[0]) and np.isnan(values[1]) and values[2] == 1e-3
+    assert flat_version({"coefficients": odd}, names)["coefficients"] == {"accel.bias.bz": 1e-3}
