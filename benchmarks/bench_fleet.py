@@ -777,32 +777,35 @@ def load_overview(url: str, fleet: Fleet) -> None:
           f"{time.perf_counter() - t0:.0f} s", flush=True)  # fmt: skip
 
 
-#: The overview before migration 0008 (reading the version documents): ``--overview``'s "before".
+#: The shore before migration 0008 (the overview reading the version documents, the route
+#: passing its answer through the response model): ``--overview``'s "before".
 OVERVIEW_BEFORE = "ef908de"
 
 
-def overview_before() -> Any:
-    """service/fleet/overview.py as it was at OVERVIEW_BEFORE, loaded as a module."""
+def module_before(path: str) -> Any:
+    """``path`` (a module of the repository) as it was at OVERVIEW_BEFORE, loaded apart."""
     import types
 
-    text = subprocess.run(["git", "show", f"{OVERVIEW_BEFORE}:service/fleet/overview.py"],
-                          cwd=ROOT, check=True, capture_output=True, text=True).stdout  # fmt: skip
-    module = types.ModuleType("overview_before")
-    exec(compile(text, f"overview.py@{OVERVIEW_BEFORE}", "exec"), module.__dict__)  # noqa: S102
+    text = subprocess.run(["git", "show", f"{OVERVIEW_BEFORE}:{path}"], cwd=ROOT, check=True,
+                          capture_output=True, text=True).stdout  # fmt: skip
+    module = types.ModuleType(f"before_{Path(path).stem}")
+    sys.modules[module.__name__] = module  # its dataclasses look themselves up there
+    exec(compile(text, f"{path}@{OVERVIEW_BEFORE}", "exec"), module.__dict__)  # noqa: S102
     return module
 
 
 def overview_timing(url: str, runs: int) -> None:
-    """``GET /fleet/overview`` through the app (FastAPI's TestClient: the route, its JSON
-    encoding, no network) with the overview before migration 0008 and after, alternately
-    ``runs`` times each after one warm-up call each; first, the two answers compared at the
-    same ``now``, and migration 0008 (adding and filling the columns) timed on these rows."""
+    """``GET /fleet/overview`` through the app (FastAPI's TestClient: the route and its JSON
+    encoding, no network) as it was before migration 0008 (service/fleet/api.py and
+    overview.py at OVERVIEW_BEFORE) and as it is, alternately ``runs`` times each after one
+    warm-up call each, on the same database; first migration 0008 (adding and filling the
+    columns) timed on these rows, and the two answers compared at the same ``now``."""
     import hashlib
 
     from alembic import command
     from fastapi.testclient import TestClient
 
-    import service.fleet.api as api
+    from service.fleet.api import create_app
     from service.fleet.config import ShoreApiSettings
     from service.fleet.migrations import alembic_config
     from service.fleet.overview import overview as after
@@ -815,9 +818,13 @@ def overview_timing(url: str, runs: int) -> None:
     store.create_schema()
     print(f"migration 0008 (add and fill the overview's columns): "
           f"{time.perf_counter() - t0:.1f} s", flush=True)  # fmt: skip
-    with store._engine.connect() as conn, conn.begin():  # as after a bulk load
-        conn.exec_driver_sql("ANALYZE fleet_versions; ANALYZE fleet_units")
-    before = overview_before().overview
+    import psycopg
+
+    with psycopg.connect(psycopg_url(url), autocommit=True) as conn:  # as autovacuum would
+        conn.execute("VACUUM ANALYZE fleet_versions")
+        conn.execute("VACUUM ANALYZE fleet_units")
+    old_api = module_before("service/fleet/api.py")
+    before = old_api.fleet_overview = module_before("service/fleet/overview.py").overview
     priors = FleetPriors(store)
     priors.current(list(MODELS))  # computed once and stored, as a running shore has them
     now = datetime.now(UTC)
@@ -825,20 +832,20 @@ def overview_timing(url: str, runs: int) -> None:
     print(f"the same answer before and after: {same}", flush=True)
     settings = ShoreApiSettings(token_sha256=hashlib.sha256(ADMIN_TOKEN.encode()).hexdigest())
     times: dict[str, list[float]] = {"before": [], "after": []}
-    size = 0
-    with TestClient(api.create_app(store, settings)) as client:
-        headers = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+    apps = {"before": old_api.create_app(store, settings), "after": create_app(store, settings)}
+    headers = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+    with TestClient(apps["before"]) as old, TestClient(apps["after"]) as new:
+        answers = {}
         for i in range(runs + 1):
-            for name, function in (("before", before), ("after", after)):
-                api.fleet_overview = function
+            for name, client in (("before", old), ("after", new)):
                 t0 = time.perf_counter()
                 answer = client.get("/fleet/overview", headers=headers)
                 took = time.perf_counter() - t0
                 answer.raise_for_status()
-                size = len(answer.content)
+                answers[name] = answer.content
                 if i:  # the first of each warms the caches
                     times[name].append(took)
-    api.fleet_overview = after
+    size = len(answers["after"])
     load = os.getloadavg()
     print(f"GET /fleet/overview ({size / 1e6:.1f} MB), {runs} runs each, alternately, load "
           f"average {load[0]:.2f}; target p95 <= 300 ms:", flush=True)  # fmt: skip

@@ -213,6 +213,22 @@ def _version(ident: int, data: dict[str, Any]) -> dict[str, Any]:
         "trigger": _name(data, "trigger", required=False),
         "method": _name(data, "method", required=False),
         "flat": flat_version(data.get("document") or {}, coefficient_names()),
+        **overview_columns(data),
+    }
+
+
+def overview_columns(data: dict[str, Any]) -> dict[str, Any]:
+    """What the overview shows of a version's document, kept in columns of its row (migration
+    0008): ``heading_error_deg_rms`` (``document.navigation.after``'s, when a number) and
+    ``reasons`` (when a list); None otherwise."""
+    heading: Any = data
+    for key in ("document", "navigation", "after", "heading_error_deg_rms"):
+        heading = heading.get(key) if isinstance(heading, dict) else None
+    number = isinstance(heading, int | float) and not isinstance(heading, bool)
+    reasons = data.get("reasons")
+    return {
+        "heading_error_deg_rms": float(heading) if number else None,
+        "reasons": reasons if isinstance(reasons, list) else None,
     }
 
 

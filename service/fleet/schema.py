@@ -19,6 +19,7 @@ from sqlalchemy import (
     BigInteger,
     Boolean,
     DateTime,
+    Float,
     ForeignKey,
     Index,
     Integer,
@@ -61,6 +62,8 @@ class UnitRow(FleetBase):
     instance: Mapped[str | None] = mapped_column(String(MAX_INSTANCE))
     #: rows kept in fleet_conflicts (a key stored with other content)
     n_conflicts: Mapped[int] = mapped_column(Integer, server_default="0")
+    #: the unit's rejected versions, kept by ingest as ``n_versions`` (migration 0008)
+    n_rejected: Mapped[int] = mapped_column(Integer, server_default="0")
 
 
 class _VesselRow:
@@ -114,6 +117,9 @@ class VersionRow(_VesselRow, FleetBase):
     __table_args__ = (
         *_key_and_time(__tablename__),
         Index("ix_fleet_versions_accepted_at", "accepted", "at"),
+        # each unit's accepted versions counted, and their newest, without reading the wide
+        # rows (the fleet prior's inputs, read by every overview), migration 0008
+        Index("ix_fleet_versions_unit_accepted_id", "unit_id", "accepted", "id"),
     )
 
     accepted: Mapped[bool] = mapped_column(Boolean)
@@ -122,6 +128,10 @@ class VersionRow(_VesselRow, FleetBase):
     #: what the fleet prior reads of the document (recal.fleet.history.flat_version by the
     #: conventions' flat names, about 2 kB), kept at ingest (migration 0006)
     flat: Mapped[dict | None] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
+    #: what the overview shows of the document, kept at ingest (migration 0008): its
+    #: ``navigation.after.heading_error_deg_rms`` (a number) and ``reasons`` (a list)
+    heading_error_deg_rms: Mapped[float | None] = mapped_column(Float)
+    reasons: Mapped[list | None] = mapped_column(JSON().with_variant(JSONB, "postgresql"))
 
 
 class EventRow(_VesselRow, FleetBase):

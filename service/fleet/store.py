@@ -287,6 +287,9 @@ class FleetStore:
             if new["version"] or new["window"]:  # the unit's counts (GET /fleet/units)
                 values["n_versions"] = UnitRow.n_versions + len(new["version"])
                 values["n_windows"] = UnitRow.n_windows + len(new["window"])
+            rejected = sum(1 for v in new["version"] if not by_kind["version"][v]["accepted"])
+            if rejected:  # the overview's count (migration 0008)
+                values["n_rejected"] = UnitRow.n_rejected + rejected
             if recorded:
                 values["n_conflicts"] = UnitRow.n_conflicts + recorded
             accepted = [by_kind["version"][v] for v in new["version"]
