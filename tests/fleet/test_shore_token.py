@@ -8,8 +8,8 @@ from __future__ import annotations
 import hashlib
 import logging
 
-import httpx
 import pytest
+from fastapi.testclient import TestClient
 
 from recal.errors import RecalInputError
 from service.cli.main import main
@@ -31,18 +31,13 @@ def _admin_reads(tmp_path, settings) -> int:
     store = FleetStore(settings.database_url)
     store.create_schema()
     try:
-        transport = httpx.ASGITransport(app=create_app(store, settings.api))
-
-        async def ask() -> int:
-            async with httpx.AsyncClient(transport=transport, base_url="http://shore") as c:
-                r = await c.get("/fleet/units", headers={"Authorization": f"Bearer {ADMIN}"})
-                wrong = await c.get("/fleet/units", headers={"Authorization": "Bearer x" * 3})
-                assert wrong.status_code == 401
-                return r.status_code
-
-        import asyncio
-
-        return asyncio.run(ask())
+        # the app in a client of its own thread: a worker whose event loop another test left
+        # running cannot asyncio.run() (seen under CI)
+        with TestClient(create_app(store, settings.api), base_url="http://shore") as c:
+            r = c.get("/fleet/units", headers={"Authorization": f"Bearer {ADMIN}"})
+            wrong = c.get("/fleet/units", headers={"Authorization": "Bearer x" * 3})
+        assert wrong.status_code == 401
+        return r.status_code
     finally:
         store.close()
 

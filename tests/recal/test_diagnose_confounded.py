@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recal.diagnose.effects import CORE_SHIFT_SIGMA, _fit, diagnose, effects_check, heldout_chi2_red
+from recal.diagnose.effects import (
+    CORE_SHIFT_SIGMA,
+    diagnose,
+    effects_check,
+    fit_effects,
+    heldout_chi2_red,
+)
 from recal.model.coefficients import CoefficientSet
 from recal.model.plugins import hidden_plugin
 from recal.model.terms import catalogue_terms
@@ -117,7 +123,7 @@ def test_heldout_chi2_is_one_for_a_right_model_and_exact_for_the_linearised_fit(
     for seed in range(6):
         pos = simulate_positions(CoefficientSet.seed_truth(), "random", 24, LAT, seed=seed)
         opt = CalibrationOptions(latitude_deg=LAT, refuse_at_solution=False)
-        fit = _fit(calibrate(pos, opt), opt, [])
+        fit = fit_effects(calibrate(pos, opt), opt, [])
         vals.append(heldout_chi2_red(fit))
     assert 0.8 < np.mean(vals) < 1.25, vals
     # the closed form is leave-one-position-out: refit without the position, predict it
