@@ -53,6 +53,8 @@ from scipy.stats import chi2
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_vessel import parse_seeds  # noqa: E402 - the same seed syntax as bench_vessel
+
 from recal.detect.hull import detect_hull  # noqa: E402
 from recal.detect.rest import RestReference  # noqa: E402
 from recal.detect.windows import windows_to_columns  # noqa: E402
@@ -186,15 +188,6 @@ def summarise(rows: list[dict], key: str = "actual", pub: str = "published") -> 
         "z_median": float(np.median(z)),
         "z_max": float(z.max()),
     }
-
-
-def parse_seeds(text: str) -> list[int]:
-    """'3600-3619' or '1,2,5' (or a mix) as a list of seeds."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.strip().partition("-")
-        seeds += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return seeds
 
 
 def main() -> int:

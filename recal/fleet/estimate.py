@@ -58,7 +58,13 @@ def random_walk_rate(delta: np.ndarray, months: np.ndarray, variance: np.ndarray
         q = np.maximum(q + score / np.maximum(info, 1e-300), 0.0)
     v = q * t + c
     info = 0.5 * (w * t**2 / v**2).sum(0)
-    q_sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
+    return rate_of_variance(q, 1.0 / np.sqrt(np.maximum(info, 1e-300)), n)
+
+
+def rate_of_variance(q: np.ndarray, q_sigma: np.ndarray, n: np.ndarray) -> RateEstimate:
+    """The rate sqrt(q) of a per-month variance ``q`` (P,) with 1-sigma ``q_sigma``: its own
+    1-sigma by the delta method, q_sigma / (2 sqrt q), with sqrt q floored at sqrt(q_sigma) so a
+    rate at 0 keeps a finite sigma; NaN where ``n`` (changes behind it) is 0."""
     rate = np.sqrt(q)
     rate_sigma = q_sigma / (2.0 * np.maximum(rate, np.sqrt(q_sigma)))
     empty = n == 0

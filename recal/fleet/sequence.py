@@ -61,7 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
 
-from recal.fleet.estimate import RateEstimate
+from recal.fleet.estimate import RateEstimate, rate_of_variance
 from recal.fleet.history import VersionTable, is_relative
 
 #: Newton steps on log q at most (from the moment estimate it converges in four to six).
@@ -198,13 +198,7 @@ class Chain:
             h = scale * 1e-3
             f = [self.loglik(k * h) for k in (0.0, 1.0, 2.0)]
             info = np.where(zero, -(f[2] - 2 * f[1] + f[0]) / h**2, info)
-        q_sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
-        rate = np.sqrt(q)
-        rate_sigma = q_sigma / (2.0 * np.maximum(rate, np.sqrt(q_sigma)))
-        empty = n == 0
-        rate[empty] = np.nan
-        rate_sigma[empty] = np.nan
-        return RateEstimate(rate, rate_sigma, n.astype(int))
+        return rate_of_variance(q, 1.0 / np.sqrt(np.maximum(info, 1e-300)), n)
 
 
 def version_chain(table: VersionTable) -> Chain:
