@@ -40,6 +40,9 @@ _API = {
     "read_coefficients": "recal.model.coefficients",
     "Positions": "recal.model.positions",
     "RecalInputError": "recal.errors",
+    # applying coefficients to raw outputs (docs/apply.md)
+    "apply": "recal.model.apply",
+    "Calibrated": "recal.model.apply",
     # error-model terms: what a plugin subclasses (recal.model.terms)
     "Term": "recal.model.terms",
     "Context": "recal.model.terms",

@@ -31,6 +31,8 @@ PUBLIC_NAMES = {
     "__version__",
     # coefficients, positions, input errors
     "CoefficientSet", "read_coefficients", "Positions", "RecalInputError",
+    # applying coefficients (docs/apply.md)
+    "apply", "Calibrated",
     # error-model terms and plugins
     "Term", "Context", "ScaleTerm", "BiasTerm", "MisalignmentTerm", "QuadraticTerm",
     "ColumnBiasTerm", "TemperatureScaleTerm", "GSensitivityTerm", "ScaleAsymmetryTerm",
@@ -76,6 +78,9 @@ SIGNATURES = {
                         ("height_m", 0.0), ("rate_hz", 100.0), ("noise", None),
                         ("temperature_c", 25.0), ("seed", 0)],
     "read_coefficients": [("data", REQUIRED), ("terms", None), ("source", "JSON")],
+    "apply": [("coefficients", REQUIRED), ("gyro", REQUIRED), ("accel", REQUIRED),
+              ("temperature", None), ("time_s", None, KW), ("gyro_unit", "deg/h", KW),
+              ("accel_unit", "g", KW), ("terms", None, KW)],
     "fleet_prior": [("versions", REQUIRED), ("model", REQUIRED), ("version", 1),
                     ("false_alarm", 0.01), ("created_at", None), ("metadata", None)],
     "detect_static": [("time_s", REQUIRED), ("gyro", REQUIRED), ("accel", REQUIRED),

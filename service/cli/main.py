@@ -28,6 +28,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "noise",
     "drift",
     "navigate",
+    "apply",
     "predict",
     "record",
     "serve",
