@@ -25,6 +25,7 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
+from recal.model.published import published_metadata
 from service.db import CalibrationRecord
 
 log = logging.getLogger("recal.publish")
@@ -33,7 +34,9 @@ log = logging.getLogger("recal.publish")
 def payload(record: CalibrationRecord) -> dict[str, Any]:
     """The published object: version, creation time, the coefficient sections and what was held
     at the prior (``held``: flat name -> the prior's value and 1-sigma; null in versions stored
-    before jobs recorded it, whose ``status`` still says which were held)."""
+    before jobs recorded it, whose ``status`` still says which were held). Beside them what
+    makes the file self-describing (recal.model.published, docs/apply.md): ``schema``,
+    ``model`` (equations, units, T0) and ``calibration_temperature_c``."""
     if record.version is None:
         raise ValueError("only a stored calibration (with a version) can be published")
     doc = record.document
@@ -44,6 +47,7 @@ def payload(record: CalibrationRecord) -> dict[str, Any]:
         "status": doc.get("status"),
         "uncertainty": doc.get("uncertainty"),
         "held": doc.get("held"),
+        **published_metadata(doc.get("coefficients")),
     }
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from recal.diagnose.drift import covariance_to_json
 from recal.errors import RecalInputError
 from recal.model.positions import Positions
+from recal.model.published import calibration_temperature
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
 from service.jobs import report_progress
@@ -66,6 +67,10 @@ def calibration_job(
     except RecalInputError as exc:
         return JobOutcome(None, False, [str(exc)], error=str(exc))
     document = result.to_json_dict()
+    # the temperature it was made at, for the published file (docs/apply.md#the-published-file)
+    document["coefficients"].setdefault("metadata", {})["calibration_temperature_c"] = (
+        calibration_temperature(columns.get("temperature_c"))
+    )
     # the full covariance: the drift and information triggers whiten by it (recal.diagnose.drift)
     document["covariance"] = covariance_to_json(result.layout.names, result.covariance)
     try:

@@ -461,6 +461,12 @@ def run(args: argparse.Namespace) -> int:
     from recal.diagnose.drift import covariance_to_json
 
     doc["covariance"] = covariance_to_json(result.layout.names, result.covariance)
+    # the temperature it was made at, carried by the coefficients file (docs/apply.md)
+    from recal.model.published import calibration_temperature
+
+    doc["coefficients"].setdefault("metadata", {})["calibration_temperature_c"] = (
+        calibration_temperature(result.problem.positions.columns.get("temperature_c"))
+    )
     if args.output:
         coefficients = {**doc["coefficients"], "covariance": doc["covariance"]}
         atomic_write(args.output, json.dumps(coefficients, indent=2) + "\n")

@@ -24,7 +24,11 @@ def test_file_holds_the_published_object(tmp_path: Path, make_record: MakeRecord
     obj = pub.publish(record)
     on_disk = json.loads(pub.path.read_text())
     assert on_disk == obj == pub.latest
-    assert set(obj) == {"version", "created_at", "coefficients", "status", "uncertainty", "held"}
+    assert set(obj) == {"version", "created_at", "coefficients", "status", "uncertainty", "held",
+                        "schema", "model", "calibration_temperature_c"}  # fmt: skip
+    assert obj["schema"] == "recal.published/1"  # docs/apply.md#the-published-file
+    assert obj["model"]["reference_temperature_c"] == record.document["coefficients"]["t0_c"]
+    assert obj["model"]["units"]["gyro.bias"] == {"symbol": "b_g", "unit": "deg/h"}
     assert obj["held"] is None  # a document from before jobs recorded what they held
     assert obj["version"] == 7 and obj["created_at"] == record.created_at.isoformat()
     assert obj["coefficients"] == record.document["coefficients"]
