@@ -68,6 +68,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from stopping import stop_on_sigterm  # noqa: E402
+
 from recal import CoefficientSet, simulate_fleet, simulate_positions  # noqa: E402
 from recal.fleet.history import MONTH_DAYS, flat_section, flat_version, is_relative  # noqa: E402
 from service.fleet.batch import overview_columns, read_batch  # noqa: E402
@@ -979,6 +981,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="only the versions: time the fleet prior's recomputation RUNS times "
                          "from the documents and from fleet_versions.flat")  # fmt: skip
     args = ap.parse_args(argv)
+    stop_on_sigterm()  # a timeout's SIGTERM stops the shore it started and drops its database
     if args.quick:
         args.units, args.years, args.ingest_units, args.repeat = 4, 60 / 365.25, 2, 3
     t_start = time.perf_counter()

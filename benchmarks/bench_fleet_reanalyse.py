@@ -31,6 +31,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from stopping import stop_on_sigterm  # noqa: E402
+
 from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.model.terms import catalogue_terms  # noqa: E402
 from recal.sim.simulate import simulate_positions  # noqa: E402
@@ -129,6 +131,7 @@ def main() -> int:
     ap.add_argument("--scaling", action="store_true", help="time 1 and 2 workers")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    stop_on_sigterm()  # a timeout's SIGTERM stops the local cluster's workers
     units = args.units or (200 if args.scaling else 50)
     carriers = args.carriers if args.carriers is not None else (3 * units) // 5
     with tempfile.TemporaryDirectory() as tmp:

@@ -59,6 +59,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from stopping import stop_on_sigterm
 
 RATE = 100.0
 SPEED = 40.0
@@ -563,10 +564,6 @@ def _run_case(case: Case, runs: int, rng: random.Random, procs: list) -> None:
     case.last_version = _current(case.url)
 
 
-def _interrupt(*_: Any) -> None:
-    raise KeyboardInterrupt
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50, help="runs per case")
@@ -579,7 +576,7 @@ def main() -> int:
     print(f"jobs: [scheduler] method = {args.method!r}"
           + (" (the shipped default)" if args.method == shipped_method() else
              f" (the daemon ships {shipped_method()!r})"), flush=True)  # fmt: skip
-    signal.signal(signal.SIGTERM, _interrupt)  # cleaned up as after ^C (daemons, mounts, DBs)
+    stop_on_sigterm()  # cleaned up as after ^C (daemons, mounts, DBs)
     from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth, session_to_kvh
 

@@ -4,7 +4,7 @@ row arrives exactly once, with its content.
 Each run registers a new unit on one shore service (``recal fleet serve`` on PostgreSQL at
 127.0.0.1:5432, a throwaway database), and starts that unit's vessel daemon (``recal serve`` on
 a replayed 24-position capture, its own SQLite database) whose ``[sync]`` points at a fault
-proxy (service.fault_proxy) in front of the shore. The proxy cuts requests mid-body and answers
+proxy (benchmarks/fault_proxy.py) in front of the shore. The proxy cuts requests mid-body and answers
 after the shore has committed (the lost acknowledgement), delays every chunk, and takes the
 link down for seconds at a time, all from the run's seed. While the vessel replays and syncs,
 the run kills (SIGKILL, the whole process group) the vessel, the shore or both at a random
@@ -63,6 +63,7 @@ from fault_injection import (  # noqa: E402 - the same process handling as the d
     _kill,
     _pg_admin,
 )
+from stopping import stop_on_sigterm  # noqa: E402
 
 RATE = 100.0
 SPEED = 30.0  # the 6-minute capture in about 12 s: the kill falls while rows are being made
@@ -247,6 +248,11 @@ class Vessel:
         self.proc.send_signal(signal.SIGTERM)
         return self.proc.wait(60)
 
+    def ensure_stopped(self) -> None:
+        """Killed (its process group) if it still runs."""
+        if self.proc is not None and self.proc.poll() is None:
+            _kill(self.proc)
+
     def drain(self, timeout_s: float) -> tuple[int, str]:
         """``recal sync``: what the outbox holds, to the shore (exit code, stderr)."""
         done = subprocess.run(
@@ -312,7 +318,7 @@ def one_run(
     tally: Tally,
     speed: float = SPEED,
 ) -> None:
-    from service.fault_proxy import FaultProxy, outage_schedule
+    from fault_proxy import FaultProxy, outage_schedule
 
     rng = random.Random(seed)
     serial = f"FAULT-{seed}-{run}"
@@ -324,34 +330,37 @@ def one_run(
         tally.outages += sum(1 for _, change in schedule if change.get("down"))
         proxy.play(schedule)
         vessel = Vessel(root / serial, capture, serial, token, proxy.url, speed)
-        vessel.start()
-        time.sleep(rng.uniform(1.0, 1.0 + 210.0 / speed))  # mid-replay, mid-sync
-        sides = {"both": ("vessel", "shore"), "rebuild": ("vessel",)}.get(victim, (victim,))
-        for side in sides:
-            part = vessel if side == "vessel" else shore
-            tally.failures += [f"run {run}: {side}: {m}" for m in part.kill()]
-        before: dict[str, dict] = {t: {} for t in KINDS}
-        gone: set[str] = set()  # the deleted database's instance
-        if victim == "rebuild":  # what the shore acknowledged of the database about to go
-            before, _ = vessel.rows(acknowledged=True)
-            gone.add(vessel.instance())
-            tally.before_rebuild += sum(len(r) for r in before.values())
-            vessel.wipe()
-        time.sleep(rng.uniform(0.5, 3.0))
-        if victim in ("shore", "both"):
-            shore.start()
-        if victim in ("vessel", "both", "rebuild"):
-            vessel.start()  # the replay starts again: a second session, more rows
-        if not vessel.replayed(180):
-            tally.failures.append(f"run {run}: the vessel's replay did not finish in 180 s")
-        code = vessel.stop()
-        if code != 0:
-            tally.failures.append(f"run {run}: the vessel exited {code} on SIGTERM")
-        # what the outbox still holds (the shutdown's events at least) goes over the same link
-        code, err = vessel.drain(120)
-        if code != 0:
-            tally.failures.append(f"run {run}: recal sync exited {code}: {err[-300:]}")
-        tally.cuts.update(proxy.stats.cuts)
+        try:
+            vessel.start()
+            time.sleep(rng.uniform(1.0, 1.0 + 210.0 / speed))  # mid-replay, mid-sync
+            sides = {"both": ("vessel", "shore"), "rebuild": ("vessel",)}.get(victim, (victim,))
+            for side in sides:
+                part = vessel if side == "vessel" else shore
+                tally.failures += [f"run {run}: {side}: {m}" for m in part.kill()]
+            before: dict[str, dict] = {t: {} for t in KINDS}
+            gone: set[str] = set()  # the deleted database's instance
+            if victim == "rebuild":  # what the shore acknowledged of the database about to go
+                before, _ = vessel.rows(acknowledged=True)
+                gone.add(vessel.instance())
+                tally.before_rebuild += sum(len(r) for r in before.values())
+                vessel.wipe()
+            time.sleep(rng.uniform(0.5, 3.0))
+            if victim in ("shore", "both"):
+                shore.start()
+            if victim in ("vessel", "both", "rebuild"):
+                vessel.start()  # the replay starts again: a second session, more rows
+            if not vessel.replayed(180):
+                tally.failures.append(f"run {run}: the vessel's replay did not finish in 180 s")
+            code = vessel.stop()
+            if code != 0:
+                tally.failures.append(f"run {run}: the vessel exited {code} on SIGTERM")
+            # what the outbox still holds (the shutdown's events at least) goes over the same link
+            code, err = vessel.drain(120)
+            if code != 0:
+                tally.failures.append(f"run {run}: recal sync exited {code}: {err[-300:]}")
+            tally.cuts.update(proxy.stats.cuts)
+        finally:  # an interrupted run (SIGTERM, Ctrl-C) leaves no daemon behind
+            vessel.ensure_stopped()
     have, left = vessel.rows()
     counts, digests, conflicts = shore.rows(serial)
     tally.runs += 1
@@ -400,6 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     victims = tuple(args.victims.split(","))
     if not victims or not set(victims) <= set(VICTIMS):
         ap.error(f"--victims: a comma-separated list of {', '.join(VICTIMS)}")
+    stop_on_sigterm()  # a timeout's SIGTERM stops the daemons and drops the database
     from recal.sim.session import simulate_session
     from service.capture_sim import kvh_like_truth, session_to_kvh
 
@@ -411,6 +421,7 @@ def main(argv: list[str] | None = None) -> int:
     tallies = {v: Tally() for v in victims}
     shore = Shore(root)
     t0 = time.monotonic()
+    interrupted = False
     try:
         shore.start()
         for run in range(args.runs):
@@ -425,6 +436,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"run {run:3d} kill {victim:6s} {time.monotonic() - t:5.1f} s "
                   f"{'ok' if not left or not left[-1].startswith(f'run {run}:') else 'FAIL'}",
                   flush=True)  # fmt: skip
+    except KeyboardInterrupt:  # SIGTERM too (stop_on_sigterm): the runs so far are reported
+        interrupted = True
+        print("interrupted: the runs so far", flush=True)
     finally:
         shore.drop()
     print(
@@ -459,7 +473,7 @@ def main(argv: list[str] | None = None) -> int:
         import shutil
 
         shutil.rmtree(root)
-    return 1 if failures else 0
+    return 130 if interrupted else 1 if failures else 0
 
 
 if __name__ == "__main__":

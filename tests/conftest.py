@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -32,6 +33,9 @@ threadpool_limits(1, user_api="blas")
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+# The source tree's test tools (benchmarks/fault_proxy.py, ...) are importable as the benchmark
+# scripts import them: they are not part of the installed package (tests/test_wheel.py)
+sys.path.insert(0, str(PROJECT_ROOT / "benchmarks"))
 
 
 @pytest.fixture(scope="session")

@@ -10,12 +10,12 @@ from pathlib import Path
 from typing import Any
 
 from fastapi.testclient import TestClient
+from fault_proxy import FaultProxy
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
 from service.api import create_app
 from service.db import CalibrationRecord, Store
-from service.fault_proxy import FaultProxy
 from service.publish import Publisher
 from service.sync import SyncThread
 

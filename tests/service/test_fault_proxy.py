@@ -1,4 +1,4 @@
-"""service.fault_proxy between a real HTTP client (httpx) and a real HTTP server (http.server in a
+"""benchmarks/fault_proxy.py between a real HTTP client (httpx) and a real HTTP server (http.server in a
 thread): traffic unchanged without faults, each fault as the sync client will meet it, the
 seeded schedule reproducible, and nothing left running after close."""
 
@@ -14,8 +14,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import httpx
 import pytest
-
-from service.fault_proxy import FaultProxy, Faults, main, outage_schedule, outages
+from fault_proxy import FaultProxy, Faults, main, outage_schedule, outages
 
 
 class _Shore(ThreadingHTTPServer):
@@ -290,5 +289,5 @@ def test_the_command_line_says_what_is_wrong_in_one_line(
     host, port = proxy.address  # taken
     assert main(["--listen", f"{host}:{port}", "--target", "shore:1"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith(f"python -m service.fault_proxy: cannot listen on {host}:{port}: ")
+    assert err.startswith(f"python benchmarks/fault_proxy.py: cannot listen on {host}:{port}: ")
     assert err.count("\n") == 1

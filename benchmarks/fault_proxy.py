@@ -1,4 +1,5 @@
-"""A TCP proxy that behaves like a bad satellite link, for the fleet sync's tests and benchmarks.
+"""A TCP proxy that behaves like a bad satellite link, for the fleet sync's tests and benchmarks
+(a tool of the source tree, not of the installed package: run it from a checkout).
 
 ``FaultProxy`` listens on 127.0.0.1 (a free port unless told) in front of a target host:port,
 forwards bytes both ways and injects the faults a vessel's link has, settable while it runs::
@@ -44,7 +45,7 @@ from any thread.
 
 Command line (docs/fleet.md, "Rehearsing a bad link")::
 
-    python -m service.fault_proxy --listen 127.0.0.1:9000 --target shore:8443 \\
+    python benchmarks/fault_proxy.py --listen 127.0.0.1:9000 --target shore:8443 \\
         --drop-request 0.1 --drop-response 0.1 --delay 0.5
 """
 
@@ -640,9 +641,9 @@ def _interrupt(signum: int, frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m service.fault_proxy``: a bad link in front of a shore service, until Ctrl-C."""
+    """``python benchmarks/fault_proxy.py``: a bad link in front of a shore service, until Ctrl-C."""
     parser = _Parser(
-        prog="python -m service.fault_proxy",
+        prog="python benchmarks/fault_proxy.py",
         description="A TCP proxy that behaves like a bad satellite link (docs/fleet.md).",
     )
     parser.add_argument(
