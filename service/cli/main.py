@@ -29,6 +29,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "drift",
     "navigate",
     "apply",
+    "export",
     "predict",
     "record",
     "serve",
