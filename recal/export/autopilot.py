@@ -95,6 +95,9 @@ def px4(cs: CoefficientSet) -> tuple[dict[str, str], list[Loss]]:
                 values = kT if power == 1 else np.zeros(3)
                 rows += [(f"TC_{tc}0_X{power}_{j}", values[j], REAL32) for j in range(3)]
     notes = _notes(cs, dropped, "recal export --to px4 (docs/export.md)")
+    if any(name.endswith("_ENABLE") for name, _, _ in rows):
+        notes.append("thermal compensation applies when TC_A0_ID / TC_G0_ID hold the sensor's "
+                     "device ID (the vehicle's CAL_ACC0_ID / CAL_GYRO0_ID)")  # fmt: skip
     lines = [f"# {n}" for n in notes] + ["#", "# Vehicle-Id Component-Id Name Value Type"]
     lines += [f"1\t1\t{name}\t{_number(value, kind)}\t{kind}" for name, value, kind in rows]
     return {"": "\n".join(lines) + "\n"}, dropped

@@ -77,6 +77,8 @@ def losses(
         if name == "gyro.scale":
             # the raw output taken as rate_unit: 1 rate_unit of input reads K / (1 / r) of it
             ratio = np.abs(value * (1.0 / r) - 1.0)
+            if ratio.max() <= 1e-9:  # already rad/s (or deg/s) to float32 precision and beyond
+                continue
             out.append(
                 Loss(name, float(ratio.max()), rate_unit, f"{at_rate} (raw read as {rate_unit})")
             )

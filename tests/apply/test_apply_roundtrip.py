@@ -2,8 +2,9 @@
 and quadratic terms included, come back through ``recal.apply`` and ``recal apply`` as the true
 inputs to within 1e-9 relative.
 
-The forward simulation is the error model written out here in numpy (conventions section 1 and
-section 7), not recal's own forward map, so a sign or order slip on either side fails.
+The forward simulation is the error model written out here in numpy (docs/reference.md#models,
+docs/reference.md#effects), not recal's own forward map, so a sign or order slip on either side
+fails.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ def truth() -> CoefficientSet:
 
 
 def _E(six: np.ndarray) -> np.ndarray:
-    """E = [[0, Exz, Exy], [Eyz, 0, Eyx], [Ezy, Ezx, 0]] (conventions section 1)."""
+    """E = [[0, Exz, Exy], [Eyz, 0, Eyx], [Ezy, Ezx, 0]] (docs/reference.md#models)."""
     Exz, Exy, Eyz, Eyx, Ezy, Ezx = six
     return np.array([[0.0, Exz, Exy], [Eyz, 0.0, Eyx], [Ezy, Ezx, 0.0]])
 
