@@ -224,3 +224,17 @@ def test_the_daemons_calibration_records_its_temperature(tmp_path: Path) -> None
                                document=outcome.document)  # fmt: skip
     doc = Publisher(tmp_path / "c.json").publish(record)
     assert doc["calibration_temperature_c"] == stored
+
+
+def test_recal_reads_the_published_file_too(tmp_path: Path) -> None:
+    """recal.apply and `recal export` take the published file as any coefficients file."""
+    import recal
+    from service.cli.main import main
+
+    path = published(tmp_path)
+    sim = simulate()
+    t = sim["t_h"] * 3600.0
+    out = recal.apply(json.loads(path.read_text()), sim["N_g"], sim["N_a"], sim["T"], time_s=t)
+    assert _relative(out.accel, sim["f"]) < 1e-9
+    assert _relative(out.gyro, sim["w"]) < 1e-9
+    assert main(["export", str(path), "--to", "imucal", "-o", str(tmp_path / "i.json")]) == 0
