@@ -248,18 +248,31 @@ class Applier:
         # (temperature scale, K2, asymmetry: 1e-3 at most) only slows the convergence.
         step = _nominal_inverse(self.coefficients, sensor)
         K = np.abs(self.coefficients.get(f"{sensor}.scale"))
+        given = _finite_rows(out, ctx)  # a lost value (NaN) in, NaN out: not a failure
         for _ in range(MAX_REFINE_STEPS):
-            residual = model.forward(theta, x, ctx)[0] - out
-            # per sample: the output's size, or the input's when terms cancel (x near -b)
-            size = np.maximum(np.abs(out).max(axis=1), np.abs(x * K).max(axis=1))[:, None]
-            close = np.abs(residual) <= RESIDUAL_TOLERANCE * size
-            if np.all(close | ~np.isfinite(residual)):  # a NaN output stays NaN
-                return x
-            x = x - residual @ step.T
+            with np.errstate(over="ignore", invalid="ignore"):  # a diverging sample is reported
+                residual = model.forward(theta, x, ctx)[0] - out
+                # per sample: the output's size, or the input's when terms cancel (x near -b)
+                size = np.maximum(np.abs(out).max(axis=1), np.abs(x * K).max(axis=1))[:, None]
+                close = np.abs(residual) <= RESIDUAL_TOLERANCE * size  # False where NaN
+                if np.all(close[given]):
+                    return x
+                x = x - residual @ step.T
         raise RecalInputError(
             f"the {sensor} model cannot be inverted for some samples (a nonlinear term too "
             "large for the input, e.g. K2 * |f| near 0.5)"
         )
+
+
+def _finite_rows(out: np.ndarray, ctx: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Samples whose outputs and per-sample context are all finite."""
+    n = out.shape[0]
+    ok = np.isfinite(out).all(axis=1)
+    for value in ctx.values():
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim and arr.shape[0] == n:
+            ok &= np.isfinite(arr.reshape(n, -1)).all(axis=1)
+    return ok
 
 
 def _nominal_inverse(coefficients: CoefficientSet, sensor: str) -> np.ndarray:

@@ -222,3 +222,23 @@ def test_recal_apply_bad_input_exits_2(tmp_path: Path, capsys) -> None:
     assert main(["apply", str(coeffs), str(no_temp), "--format", "csv", "-o", str(out)]) == 2
     assert "need the temperature" in capsys.readouterr().err
     assert not out.exists()  # nothing half-written under the final name
+
+
+def test_a_nonlinear_term_too_large_to_invert_is_an_input_error() -> None:
+    """2 K2 |f| above 1: the inverse does not converge, and says so instead of returning NaN."""
+    cs = CoefficientSet.seed_truth()
+    cs.values["accel.quadratic"] = np.array([0.6, 0.6, 0.6])  # 1/g
+    f = np.array([[3.0, 0.1, 0.1], [0.5, 0.1, 0.2]])  # g
+    N_a = cs.values["accel.scale"] * (f + 0.6 * f**2 + cs.values["accel.bias"])
+    with pytest.raises(RecalInputError, match="cannot be inverted"):
+        recal.apply(cs, None, N_a)
+
+
+def test_a_lost_value_stays_lost() -> None:
+    cs, x = truth(), inputs()
+    N_g, N_a = forward(cs, x)
+    N_a[10] = np.nan
+    out = recal.apply(cs, N_g, N_a, x["temp"], time_s=x["time_s"])
+    assert np.isnan(out.accel[10]).all() and np.isnan(out.gyro[10]).all()  # g-sensitivity needs f
+    keep = np.arange(N) != 10
+    assert max_relative(out.accel[keep], x["f_g"][keep]) < 1e-9
