@@ -2,7 +2,8 @@
 
 Both read raw samples in m/s^2 and rad/s and correct them per axis, with no misalignment:
 
-- PX4: ``a = (raw - thermal - CAL_ACC0_{X,Y,Z}OFF) * CAL_ACC0_{X,Y,Z}SCALE`` and
+- PX4: ``a = (raw - thermal - CAL_ACC0_{X,Y,Z}OFF) * CAL_ACC0_{X,Y,Z}SCALE`` (the calibration
+  temperature in ``CAL_ACC0_TEMP``) and
   ``w = raw - thermal - CAL_GYRO0_{X,Y,Z}OFF``; ``thermal = sum_i TC_A0_Xi_j (T - TC_A0_TREF)^i``
   (i = 0..3, axis j = 0..2; T held in [TC_A0_TMIN, TC_A0_TMAX]; gyro: TC_G0_*).
 - ArduPilot: ``a = (raw - tcal(T) + tcal(INS_ACC1_CALTEMP) - INS_ACCOFFS_{X,Y,Z}) *
@@ -81,13 +82,14 @@ def px4(cs: CoefficientSet) -> tuple[dict[str, str], list[Loss]]:
     sensors = _sensors(cs, "px4")
     dropped = losses(cs, _NOT_CARRIED, rate_unit="rad/s", force_unit="m/s^2")
     rows: list[tuple[str, float, int]] = []
-    _, tmin, tmax = temperature_range(cs)
+    tcal, tmin, tmax = temperature_range(cs)
     for sensor in sensors:
         K, offset, kT = _parts(cs, sensor)
         cal, tc = ("ACC0", "A") if sensor == "accel" else ("GYRO0", "G")
         rows += [(f"CAL_{cal}_{a}OFF", offset[i], REAL32) for i, a in enumerate(AXES)]
         if sensor == "accel":
             rows += [(f"CAL_{cal}_{a}SCALE", G0_M_S2 / K[i], REAL32) for i, a in enumerate(AXES)]
+            rows.append((f"CAL_{cal}_TEMP", tcal, REAL32))  # the temperature it was made at
         if kT is not None:
             rows += [(f"TC_{tc}_ENABLE", 1, INT32), (f"TC_{tc}0_TREF", cs.t0_c, REAL32),
                      (f"TC_{tc}0_TMIN", tmin, REAL32), (f"TC_{tc}0_TMAX", tmax, REAL32)]  # fmt: skip

@@ -116,6 +116,7 @@ def test_px4_parameters_applied_as_px4_does(tmp_path: Path, capsys) -> None:
     sim = simulate(cs)
     params = read_px4(path)
     assert params["TC_A_ENABLE"] == 1 and params["TC_A0_TREF"] == T0
+    assert params["CAL_ACC0_TEMP"] == T_CAL  # the temperature the calibration was made at
     accel, gyro = px4_apply(params, sim["accel"], sim["gyro"], sim["T"])
     assert _relative(accel, sim["f"] * G0) < 1e-7  # 9 digits written: float32 on the vehicle
     assert _relative(gyro, sim["w"] * RAD_S_PER_DEG_H) < 1e-7
