@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
+import orjson
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
@@ -603,9 +604,10 @@ def _fleet_routes(app: FastAPI) -> None:
         """One row per unit for the dashboard (units needing attention first) and the fleet's
         totals; a unit's token: its own row alone."""
         # JSON values only: encoded as they are, without a pass of the response model over
-        # the whole answer first (1.2 MB at 1000 units, docs/fleet.md#scale)
+        # the whole answer first, by orjson (1.2 MB at 1000 units: 1 ms, the standard
+        # library's 17 ms; docs/fleet.md#scale); a non-finite number becomes null
         view = fleet_overview(store, priors, only=None if who.unit is None else who.unit.id)
-        return JSONResponse(view)
+        return Response(orjson.dumps(view), media_type="application/json")
 
     @app.get(
         "/fleet/prior",

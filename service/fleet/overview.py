@@ -9,16 +9,18 @@ over the last 7 days, the backlog the vessel last reported) and its model's flee
 unit an outlier). Units that need a person come first (``attention``): a rejected last
 version, drift declared against the current version, an outlier of its model, a stale link.
 
-The whole overview is a fixed number of SQL statements, whatever the number of units, and
-none reads a version's document: what it shows of one (the heading error, the reasons) is kept
-in narrow columns of the version's row at ingest (migration 0008; reading two 30 kB documents
-a unit took 0.99 s p95 at 1000 units x 5 years). None reads a table of vessel rows whole
-(docs/fleet.md#scale: 4.4 s for 200 units x 5 years when they did): the counts are the unit
-row's (kept by ingest), each "newest of a unit" is a per-unit lookup in an index
-(unit, ..., time, vessel row id), and the link reads the last days of the ingest log by its time
-index. "Newest" is by time, not by vessel row id: a vessel whose database was made again
-(another ``instance``) numbers its rows from 1 again. Conflicts (rows received whose key was
-stored with other content, docs/fleet.md) are counted on the unit's row and need a person.
+The whole overview is two SQL statements (and the priors'), whatever the number of units, and
+none reads a version's document or looks a unit's newest rows up: ingest keeps on the unit's
+row its counts, the backlog of its newest batch and the row ids of its current, newest and
+newest rejected version and of its newest drift event (migration 0009); what a version shows
+(the heading error, the reasons) is kept in narrow columns of its row (migration 0008); and
+the link is per unit and UTC day in ``fleet_link_days``, summed by ingest. So one statement
+joins the units to those rows by primary key, and the other reads 7 link rows a unit
+(docs/fleet.md#scale: 0.99 s p95 at 1000 units x 5 years reading two 30 kB documents a unit,
+0.40 s with 0008's columns and per-unit lookups). "Newest" is by time, not by vessel row id: a
+vessel whose database was made again (another ``instance``) numbers its rows from 1 again.
+Conflicts (rows received whose key was stored with other content, docs/fleet.md) are counted
+on the unit's row and need a person.
 """
 
 from __future__ import annotations
@@ -27,12 +29,12 @@ from collections import defaultdict
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import select
 from sqlalchemy.orm import aliased
 
 from service.fleet.priors import FleetPriors
-from service.fleet.schema import EventRow, IngestRow, UnitRow, VersionRow
-from service.fleet.store import FleetStore, iso_time
+from service.fleet.schema import EventRow, LinkDayRow, UnitRow, VersionRow
+from service.fleet.store import FleetStore, iso_time, utc_day
 
 #: Days of traffic in a row's ``bytes_per_day``.
 LINK_DAYS = 7
@@ -40,25 +42,6 @@ LINK_DAYS = 7
 STALE_HOURS = 48.0
 #: The order of ``attention`` (and of the rows: the first reason ranks a unit).
 ATTENTION = ("rejected", "drift", "outlier", "conflicts", "stale", "never")
-
-
-def _day(store: FleetStore, column: Any) -> Any:
-    if store.dialect == "postgresql":
-        return func.to_char(func.timezone("UTC", column), "YYYY-MM-DD")
-    return func.strftime("%Y-%m-%d", column)
-
-
-def _latest(table: Any, *where: Any, key: Any = None, order: Any = None) -> Any:
-    """(unit_id, ``key`` of the newest row) of ``table`` rows matching ``where``, per unit:
-    ``key`` (default the shore's row id) of the row first in ``order`` (default the newest by
-    time, then vessel row id). A lookup per unit in an index on (unit, ..., order), not a
-    grouping of the whole table."""
-    key = table.id if key is None else key
-    order = [table.at.desc(), table.vessel_id.desc()] if order is None else order
-    newest = (
-        select(key).where(table.unit_id == UnitRow.id, *where).order_by(*order).limit(1)
-    ).scalar_subquery()
-    return select(UnitRow.id.label("unit_id"), newest.label("v")).subquery()
 
 
 def overview(
@@ -72,74 +55,42 @@ def overview(
     now = now or datetime.now(UTC)
     unit_filter = [] if only is None else [UnitRow.id == only]
 
-    # 1. units with their counts (kept by ingest)
+    # 1. each unit with its counts and the rows it shows, by the row ids ingest keeps on the
+    #    unit's row (migration 0009): its current (newest accepted), newest and newest
+    #    rejected version and its newest drift evaluation
+    cur, last, rej = (aliased(VersionRow) for _ in range(3))
     q_units = (
-        select(UnitRow.id, UnitRow.serial, UnitRow.model, UnitRow.instance, UnitRow.last_contact,
-               UnitRow.n_versions, UnitRow.n_rejected, UnitRow.n_windows, UnitRow.n_conflicts)
+        select(
+            UnitRow.id, UnitRow.serial, UnitRow.model, UnitRow.instance, UnitRow.last_contact,
+            UnitRow.n_versions, UnitRow.n_rejected, UnitRow.n_windows, UnitRow.n_conflicts,
+            UnitRow.backlog,
+            cur.vessel_id, cur.at, cur.heading_error_deg_rms, cur.trigger, cur.instance,
+            last.vessel_id, last.at, last.trigger, last.accepted,
+            rej.vessel_id, rej.at, rej.reasons,
+            EventRow.at, EventRow.instance, EventRow.data["data"],
+        )
+        .outerjoin(cur, cur.id == UnitRow.current_row)
+        .outerjoin(last, last.id == UnitRow.last_version_row)
+        .outerjoin(rej, rej.id == UnitRow.rejected_row)
+        .outerjoin(EventRow, EventRow.id == UnitRow.drift_row)
         .where(*unit_filter)
         .order_by(UnitRow.serial)
     )  # fmt: skip
-    # 2. the current (newest accepted), the last and the last rejected version of each unit
-    current_v = _latest(VersionRow, VersionRow.accepted.is_(True))
-    last_v = _latest(VersionRow)
-    rejected_v = _latest(VersionRow, VersionRow.accepted.is_(False))
-    cur, last, rej = (aliased(VersionRow) for _ in range(3))
-    q_versions = (
-        select(
-            UnitRow.id,
-            cur.vessel_id,
-            cur.at,
-            cur.heading_error_deg_rms,
-            cur.trigger,
-            last.vessel_id,
-            last.at,
-            last.trigger,
-            last.accepted,
-            rej.vessel_id,
-            rej.at,
-            rej.reasons,
-            cur.instance,
-        )  # fmt: skip
-        .outerjoin(current_v, current_v.c.unit_id == UnitRow.id)
-        .outerjoin(cur, cur.id == current_v.c.v)
-        .outerjoin(last_v, last_v.c.unit_id == UnitRow.id)
-        .outerjoin(last, last.id == last_v.c.v)
-        .outerjoin(rejected_v, rejected_v.c.unit_id == UnitRow.id)
-        .outerjoin(rej, rej.id == rejected_v.c.v)
-        .where(*unit_filter)
-    )
-    # 3. the latest drift evaluation of each unit
-    drift_e = _latest(EventRow, EventRow.kind == "drift")
-    q_drift = (
-        select(EventRow.unit_id, EventRow.at, EventRow.data, EventRow.instance)
-        .join(drift_e, drift_e.c.v == EventRow.id)
-        .where(*([] if only is None else [EventRow.unit_id == only]))
-    )  # fmt: skip
-    # 4. the link: bytes per day over the last LINK_DAYS, and the backlog of the last batch
+    # 2. the link: bytes and rows per UTC day over the last LINK_DAYS (summed by ingest)
     since = (now - timedelta(days=LINK_DAYS - 1)).replace(hour=0, minute=0, second=0,
                                                           microsecond=0)  # fmt: skip
-    day = _day(store, IngestRow.at)
-    q_link = (
-        select(IngestRow.unit_id, day, func.sum(IngestRow.compressed_bytes), func.sum(IngestRow.rows))
-        .where(IngestRow.at >= since, *([] if only is None else [IngestRow.unit_id == only]))
-        .group_by(IngestRow.unit_id, day)
-    )  # fmt: skip
-    last_batch = _latest(IngestRow, key=IngestRow.id,
-                         order=[IngestRow.at.desc(), IngestRow.id.desc()])  # fmt: skip
-    q_backlog = select(IngestRow.unit_id, IngestRow.backlog).join(
-        last_batch, last_batch.c.v == IngestRow.id
-    )
+    q_link = select(LinkDayRow.unit_id, LinkDayRow.day, LinkDayRow.compressed_bytes,
+                    LinkDayRow.rows).where(LinkDayRow.day >= utc_day(since))  # fmt: skip
     if only is not None:
-        q_backlog = q_backlog.where(IngestRow.unit_id == only)
+        q_link = q_link.where(LinkDayRow.unit_id == only)
 
     with store._tx() as s:
-        units = s.execute(q_units).all()
-        by_version = {r[0]: r[1:] for r in s.execute(q_versions)}
-        drift = {u: (at, data, inst) for u, at, data, inst in s.execute(q_drift)}
+        # Core, not the ORM's execution: its per-row processing cost 20 ms at 1000 units
+        conn = s.connection()
+        units = conn.execute(q_units).all()
         traffic: dict[int, dict[str, tuple[int, int]]] = defaultdict(dict)
-        for u, d, b, n in s.execute(q_link):
+        for u, d, b, n in conn.execute(q_link):
             traffic[u][d] = (int(b or 0), int(n or 0))
-        backlog = dict(s.execute(q_backlog).all())
 
     # 5. the fleet priors of the models shown (their outliers): a fixed number of queries too
     models = sorted({u.model for u in units if u.model})
@@ -151,9 +102,9 @@ def overview(
     days = [(since + timedelta(days=i)).strftime("%Y-%m-%d") for i in range(LINK_DAYS)]
     rows = []
     for u in units:
-        v = by_version.get(u.id) or (None,) * 12
-        (cur_id, cur_at, cur_heading, cur_trigger, last_id, last_at, last_trigger,
-         last_accepted, rej_id, rej_at, rej_reasons, cur_instance) = v  # fmt: skip
+        (cur_id, cur_at, cur_heading, cur_trigger, cur_instance, last_id, last_at, last_trigger,
+         last_accepted, rej_id, rej_at, rej_reasons, drift_at, drift_instance,
+         drift_data) = u[10:]  # fmt: skip
         row: dict[str, Any] = {
             "unit": u.serial,
             "model": u.model,
@@ -176,11 +127,14 @@ def overview(
             "last_accepted": last_accepted,
             "last_trigger": last_trigger,
             "drift": _drift_state(
-                drift.get(u.id), (cur_id, cur_instance, cur_at), last_trigger, last_accepted
+                None if drift_at is None else (drift_at, drift_data, drift_instance),
+                (cur_id, cur_instance, cur_at),
+                last_trigger,
+                last_accepted,
             ),  # fmt: skip
             "instance": u.instance,
             "conflicts": u.n_conflicts or 0,
-            "link": _link(u, traffic.get(u.id, {}), days, backlog.get(u.id), now),
+            "link": _link(u, traffic.get(u.id, {}), days, u.backlog, now),
             "outlier": _outlier(flagged.get((u.model, u.serial)), current_priors.get(u.model)),
         }
         row["attention"] = _attention(row)
@@ -223,7 +177,8 @@ def _drift_state(
     """``state``: ``drift`` (declared against the current version, not yet recalibrated),
     ``recalibrated`` (declared against an older version, or the last version was a drift job
     that was accepted), ``steady`` (the latest evaluation found none) or ``unknown`` (none
-    received); with the latest evaluation's figures. ``current_version``: (number, instance,
+    received); with the latest evaluation's figures. ``latest``: (time, the event's ``data``,
+    instance) of the newest drift event. ``current_version``: (number, instance,
     time) of the current version; version numbers compare within one vessel database instance
     only, across two the times do."""
     current, current_instance, current_at = current_version
@@ -234,8 +189,7 @@ def _drift_state(
             out["state"] = "recalibrated" if last_accepted else "drift"
         return out
     at, data, instance = latest
-    data = data if isinstance(data, dict) else {}
-    inner = data.get("data") if isinstance(data.get("data"), dict) else {}
+    inner = data if isinstance(data, dict) else {}
     out.update(at=iso_time(at), statistic=_number(inner.get("statistic")),
                threshold=_number(inner.get("threshold")), suspect=inner.get("suspect"),
                version=inner.get("version"))  # fmt: skip

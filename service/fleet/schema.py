@@ -64,6 +64,15 @@ class UnitRow(FleetBase):
     n_conflicts: Mapped[int] = mapped_column(Integer, server_default="0")
     #: the unit's rejected versions, kept by ingest as ``n_versions`` (migration 0008)
     n_rejected: Mapped[int] = mapped_column(Integer, server_default="0")
+    #: what the overview shows of the unit, kept by ingest (migration 0009): the shore row ids
+    #: of its current version (the newest accepted by time, then vessel row id), its newest
+    #: version and newest rejected one, and its newest ``drift`` event; and the backlog its
+    #: newest batch reported
+    current_row: Mapped[int | None] = mapped_column(BigInteger)
+    last_version_row: Mapped[int | None] = mapped_column(BigInteger)
+    rejected_row: Mapped[int | None] = mapped_column(BigInteger)
+    drift_row: Mapped[int | None] = mapped_column(BigInteger)
+    backlog: Mapped[int | None] = mapped_column(Integer)
 
 
 class _VesselRow:
@@ -165,6 +174,25 @@ class IngestRow(FleetBase):
     stored: Mapped[int] = mapped_column(Integer)
     #: outbox rows the vessel still held besides this batch, when the batch said (0002)
     backlog: Mapped[int | None] = mapped_column(Integer)
+
+
+class LinkDayRow(FleetBase):
+    """A unit's traffic of one UTC day, summed by ingest from the batches it acknowledges (the
+    ingest log's per-day totals, kept so the overview's link reads 7 rows a unit, not 42
+    batches; migration 0009)."""
+
+    __tablename__ = "fleet_link_days"
+    __table_args__ = (Index("ix_fleet_link_days_day", "day"),)
+
+    unit_id: Mapped[int] = mapped_column(
+        ForeignKey("fleet_units.id", ondelete="CASCADE"), primary_key=True
+    )
+    #: the UTC day, ``YYYY-MM-DD``
+    day: Mapped[str] = mapped_column(String(10), primary_key=True)
+    batches: Mapped[int] = mapped_column(Integer)
+    rows: Mapped[int] = mapped_column(BigInteger)
+    stored: Mapped[int] = mapped_column(BigInteger)
+    compressed_bytes: Mapped[int] = mapped_column(BigInteger)
 
 
 class ConflictRow(FleetBase):

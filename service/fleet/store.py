@@ -37,6 +37,7 @@ from service.fleet.schema import (
     ConflictRow,
     EventRow,
     IngestRow,
+    LinkDayRow,
     UnitRow,
     VersionRow,
 )
@@ -258,7 +259,8 @@ class FleetStore:
         with self._tx(write=True) as s:
             # the unit's row first: one unit's batches take turns, whatever their rows
             s.execute(update(UnitRow).where(UnitRow.id == unit.id)
-                      .values(last_contact=now, instance=instance))  # fmt: skip
+                      .values(last_contact=now, instance=instance,
+                              backlog=batch.backlog))  # fmt: skip
             for kind, rows in by_kind.items():
                 if not rows:
                     continue
@@ -307,10 +309,25 @@ class FleetStore:
                                       ("current_at", top["at"]),
                                       ("current_instance", instance)):  # fmt: skip
                     values[column] = case((newer, value), else_=getattr(UnitRow, column))
+            values |= _newest_rows(
+                unit.id,
+                versions=bool(new["version"]),
+                drift=any(by_kind["event"][i].get("kind") == "drift" for i in new["event"]),
+            )
             if values:
                 s.execute(update(UnitRow).where(UnitRow.id == unit.id).values(**values))
             s.add(IngestRow(unit_id=unit.id, at=now, compressed_bytes=compressed_bytes,
                             rows=len(batch.rows), stored=stored, backlog=batch.backlog))  # fmt: skip
+            day = insert(LinkDayRow).values(
+                unit_id=unit.id, day=utc_day(now), batches=1, rows=len(batch.rows),
+                stored=stored, compressed_bytes=compressed_bytes,
+            )  # fmt: skip
+            s.execute(day.on_conflict_do_update(
+                index_elements=["unit_id", "day"],
+                set_={"batches": LinkDayRow.batches + 1, "rows": LinkDayRow.rows + len(batch.rows),
+                      "stored": LinkDayRow.stored + stored,
+                      "compressed_bytes": LinkDayRow.compressed_bytes + compressed_bytes},
+            ))  # fmt: skip
         n_conflicts = len(conflicting)
         return Ingested(stored, len(batch.rows) - stored - n_conflicts, n_conflicts)
 
@@ -528,6 +545,37 @@ def _between(query: Any, table: Any, since: datetime | None, until: datetime | N
     if until is not None:
         query = query.where(table.at < until.astimezone(UTC))
     return query
+
+
+def utc_day(at: datetime) -> str:
+    """``YYYY-MM-DD`` of ``at``'s UTC day (``fleet_link_days.day``)."""
+    return as_utc(at).strftime("%Y-%m-%d")
+
+
+def _newest(table: Any, unit_id: int, *where: Any) -> Any:
+    """The shore row id of a unit's newest row of ``table`` matching ``where``: by time, then
+    vessel row id (not row id alone: a rebuilt vessel's ids start at 1 again)."""
+    return (
+        select(table.id)
+        .where(table.unit_id == unit_id, *where)
+        .order_by(table.at.desc(), table.vessel_id.desc())
+        .limit(1)
+        .scalar_subquery()
+    )
+
+
+def _newest_rows(unit_id: int, *, versions: bool, drift: bool) -> dict[str, Any]:
+    """The unit's row ids the overview shows (migration 0009), looked up again when a batch
+    stored versions or drift events: rows may arrive out of order (a backlog, another
+    instance), so the newest is found, not assumed to be the one just stored."""
+    out: dict[str, Any] = {}
+    if versions:
+        out["current_row"] = _newest(VersionRow, unit_id, VersionRow.accepted.is_(True))
+        out["last_version_row"] = _newest(VersionRow, unit_id)
+        out["rejected_row"] = _newest(VersionRow, unit_id, VersionRow.accepted.is_(False))
+    if drift:
+        out["drift_row"] = _newest(EventRow, unit_id, EventRow.kind == "drift")
+    return out
 
 
 def iso_time(value: datetime | None) -> str | None:

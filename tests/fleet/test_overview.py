@@ -320,3 +320,58 @@ def test_a_request_never_waits_for_a_recompute(shore, fleet, wire, monkeypatch) 
         assert computed_in == ["fleet-prior-refresh"]  # and not again
     finally:
         priors.close()
+
+
+def _drift_event(ident: int, at: str, version: int, alarm: int | None) -> dict[str, Any]:
+    data = {"version": version, "statistic": float(ident), "threshold": 17.0,
+            "alarm_window": alarm, "suspect": None}  # fmt: skip
+    return {"kind": "event", "id": ident, "at": at,
+            "data": {"kind": "drift", "message": "m", "created_at": at, "data": data}}  # fmt: skip
+
+
+def test_what_ingest_keeps_for_the_overview_is_what_the_rows_say(fleet_store, wire) -> None:
+    """The overview reads what ingest keeps on the unit's row and per link day (migration
+    0009). Rows arriving out of time order, from two database instances, in batches sent in
+    shuffled order: the kept state must be what migration 0009 computes afresh from the rows
+    stored (the current version is the newest accepted by time, not the last received)."""
+    import json
+    import random
+
+    from alembic import command
+
+    from service.fleet.batch import read_batch
+    from service.fleet.migrations import alembic_config, head
+
+    rng = random.Random(5)
+    for serial in ("OOO-1", "OOO-2"):
+        fleet_store.add_unit(serial, "KVH-1750")
+        unit = fleet_store.unit_by_serial(serial)
+        rows = []
+        for v in range(1, 9):  # versions of days 1..8, every third rejected
+            at = f"2026-11-{v:02d}T10:00:00Z"
+            doc = wire.version_doc(v, v % 3 != 0, at) | {"reasons": [f"reason {v}"]}
+            doc["document"] = doc["document"] | {
+                "navigation": {"after": {"heading_error_deg_rms": 0.1 * v}}
+            }
+            rows.append({"kind": "version", "id": v, "at": at, "data": doc})
+            rows.append(_drift_event(v, f"2026-11-{v:02d}T09:00:00Z", v - 1, 3 if v == 5 else None))
+        rng.shuffle(rows)
+        batches = [rows[i : i + 3] for i in range(0, len(rows), 3)]
+        for k, part in enumerate(batches):
+            batch = wire.batch(serial, part) | {"backlog": len(batches) - k,
+                                                "instance": "a" * 8 if k % 2 else "b" * 8}  # fmt: skip
+            body = json.dumps(batch).encode()
+            assert fleet_store.ingest(unit, read_batch(body, None, 10**6), 100 + k).stored
+    now = datetime.now(UTC)  # the link's days are the batches' (received now)
+    kept = overview(fleet_store, FleetPriors(fleet_store), now=now)
+    row = {r["unit"]: r for r in kept["units"]}["OOO-1"]
+    assert row["current_version"] == 8 and row["last_version"] == 8  # the newest by time
+    assert row["rejected"]["last_version"] == 6 and row["rejected"]["count"] == 2
+    assert row["drift"]["statistic"] == 8.0 and row["drift"]["state"] == "steady"
+    assert row["link"]["backlog"] == 1
+    assert sum(d["rows"] for d in row["link"]["bytes_per_day"]) == 16
+    with fleet_store._engine.connect() as conn, conn.begin():
+        command.downgrade(alembic_config(conn), "0008")
+    fleet_store.create_schema()
+    assert fleet_store.schema_revision() == head()
+    assert overview(fleet_store, FleetPriors(fleet_store), now=now) == kept
