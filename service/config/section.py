@@ -1,0 +1,51 @@
+"""A settings section: unknown keys are errors (named, with the environment variable they
+came from), and a section converts to the lower layer's config dataclass by shared field names."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ConfigDict
+
+T = TypeVar("T")
+
+
+class Section(BaseModel):
+    """A configuration section: a key it does not define is an error, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:
+    """``cls`` (a dataclass of a lower layer, e.g. ``recal.detect.static.DetectorConfig`` or
+    ``drivers.DecoderConfig``) from the fields of a settings ``section`` it shares by name, plus
+    ``extra``: no field-by-field copy to fall out of step when either side gains a field."""
+    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    given = {k: v for k, v in section.model_dump().items() if k in names}
+    return cls(**{**given, **extra})
+
+
+def check_keys(model: type[BaseModel], data: Mapping[str, Any], section: str | None) -> None:
+    """Raise ValueError naming the first key of ``data`` that ``model`` (or one of its section
+    models, recursively) does not define."""
+    fields = model.model_fields
+    for key, value in data.items():
+        if key not in fields:
+            where = f"{section}: " if section else ""
+            raise ValueError(
+                f"{where}unknown key {key} (known: {', '.join(fields)}){_env_hint(section, key)}"
+            )
+        sub = fields[key].annotation
+        if isinstance(value, Mapping) and isinstance(sub, type) and issubclass(sub, BaseModel):
+            check_keys(sub, value, f"{section}.{key}" if section else key)
+
+
+def _env_hint(section: str | None, key: str) -> str:
+    """Where an unknown key came from, when it is an environment variable."""
+    parts = [*(section.split(".") if section else []), key]
+    name = "RECAL_" + "__".join(parts)
+    found = [k for k in os.environ if k.upper() == name.upper()]
+    return f" from environment variable {found[0]}" if found else ""
