@@ -51,13 +51,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from recal.diagnose.drift import (  # noqa: E402
-    DriftConfig,
-    drift_inputs,
-    drift_test,
-    gain_parts,
-    whiten,
-)
+from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test, whiten  # noqa: E402
+from recal.diagnose.drift_glr import gain_parts  # noqa: E402
 from recal.diagnose.effects import diagnose  # noqa: E402
 from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.model.positions import Positions  # noqa: E402

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from recal.diagnose.drift import covariance_to_json
+from recal.diagnose.drift_covariance import covariance_to_json
 from recal.errors import RecalInputError
 from recal.model.positions import Positions
 from recal.model.published import calibration_temperature

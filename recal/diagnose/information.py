@@ -105,7 +105,8 @@ def information_gain(
     """The expected sharpening of ``coefficients`` (covariance as :func:`recal.diagnose.drift.drift_inputs`
     takes it) if ``positions`` (new windows; ``slews`` between them, a :class:`recal.detect.slews.Slews`
     in their rows) were added to the data they were fitted on."""
-    from recal.diagnose.drift import accepted_model, coefficient_covariance
+    from recal.diagnose.drift_covariance import coefficient_covariance
+    from recal.diagnose.drift_windows import accepted_model
     from recal.solve.observability import jacobian
     from recal.solve.problem import Problem
 

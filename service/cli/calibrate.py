@@ -458,7 +458,7 @@ def run(args: argparse.Namespace) -> int:
 
     doc["navigation"] = navigation_summary(result, prior_name=args.prior)
     # the full covariance beside the 1-sigma values: recal drift whitens with it (docs/drift.md)
-    from recal.diagnose.drift import covariance_to_json
+    from recal.diagnose.drift_covariance import covariance_to_json
 
     doc["covariance"] = covariance_to_json(result.layout.names, result.covariance)
     # the temperature it was made at, carried by the coefficients file (docs/apply.md)

@@ -6,15 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.diagnose.drift import (
-    DriftConfig,
-    DriftInputs,
-    describe_change,
-    drift_inputs,
-    drift_test,
-    plain_cusum,
-    threshold,
-)
+from recal.diagnose.drift import DriftConfig, DriftInputs, drift_inputs, drift_test, threshold
+from recal.diagnose.drift_cusum import plain_cusum
+from recal.diagnose.drift_suspects import describe_change
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
@@ -195,7 +189,7 @@ def test_file_uncertainty_is_a_diagonal_covariance(fits):
 
 def test_file_covariance_block_round_trips(fits):
     """calibrate -o writes the covariance by name; read back in another order it is the same."""
-    from recal.diagnose.drift import covariance_to_json
+    from recal.diagnose.drift_covariance import covariance_to_json
 
     fit = fits[0]
     names = fit.layout.names
