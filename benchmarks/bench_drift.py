@@ -12,7 +12,7 @@ scale +600 ppm, or accel x bias +5 micro-g. Acceptance (issue 20): steady, at mo
 Columns: "GLR, with the covariance" (calibrate's full covariance: the daemon, and ``recal drift``
 on a file ``calibrate -o`` wrote), "GLR, 1-sigma only" (a coefficients file without its
 covariance: the 1-sigma values as a diagonal), "GLR, coefficients
-exact" (covariance zero) and "plain CUSUM" (``recal.diagnose.drift_cusum.plain_cusum``: the three invariants
+exact" (covariance zero) and "plain CUSUM" (``benchmarks/drift_cusum.py``, ``plain_cusum``: the three invariants
 whitened by each window's noise alone). "lambda" is the information a single test that knew the
 change window and the coefficient would have by the acceptance window (noncentrality
 Delta^2 I_jj, median over seeds): what any test at this false-alarm rate has to work with.
@@ -29,8 +29,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from drift_cusum import plain_cusum  # noqa: E402
+
 from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test, whiten  # noqa: E402
-from recal.diagnose.drift_cusum import plain_cusum  # noqa: E402
 from recal.diagnose.drift_glr import gain_parts  # noqa: E402
 from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.sim.simulate import simulate_positions  # noqa: E402

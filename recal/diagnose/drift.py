@@ -55,8 +55,8 @@ coefficients, :func:`drift_test` runs the sequential test on them. The parts liv
 module: the windows' residuals, noise and signatures (:mod:`recal.diagnose.drift_windows`), the
 coefficients' covariance and its file block (:mod:`recal.diagnose.drift_covariance`), the GLR
 score and scan (:mod:`recal.diagnose.drift_glr`), the threshold's null simulation
-(:mod:`recal.diagnose.drift_null`), the suspects (:mod:`recal.diagnose.drift_suspects`) and the
-plain CUSUM baseline (:mod:`recal.diagnose.drift_cusum`).
+(:mod:`recal.diagnose.drift_null`) and the suspects (:mod:`recal.diagnose.drift_suspects`); the
+plain CUSUM baseline the benchmark compares against is benchmarks/drift_cusum.py.
 """
 
 from __future__ import annotations

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drift_cusum import plain_cusum  # benchmarks/drift_cusum.py: the benchmark's baseline
 
 from recal.diagnose.drift import DriftConfig, DriftInputs, drift_inputs, drift_test, threshold
-from recal.diagnose.drift_cusum import plain_cusum
 from recal.diagnose.drift_suspects import describe_change
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet

@@ -1,5 +1,6 @@
 """The baseline the drift test is measured against (benchmarks/bench_drift.py): a plain two-sided
-CUSUM per invariant that ignores the coefficients' own uncertainty."""
+CUSUM per invariant that ignores the coefficients' own uncertainty. A benchmark's tool, not
+shipped (tests import it from benchmarks/ as ``drift_cusum``)."""
 
 from __future__ import annotations
 
