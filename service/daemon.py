@@ -30,14 +30,10 @@ from typing import Any
 from recal.errors import RecalInputError
 from service.config import Settings
 from service.events import Events
-from service.pipeline import (
-    FloorKeeper,
-    Ingest,
-    IngestThread,
-    detector_config,
-    rest_reference,
-    window_frames,
-)
+from service.ingest.floor_keeper import FloorKeeper
+from service.ingest.setup import detector_config, rest_reference, window_frames
+from service.ingest.thread import IngestThread
+from service.pipeline import Ingest
 from service.scheduler import Scheduler
 
 log = logging.getLogger("recal.daemon")

@@ -29,7 +29,8 @@ from service.config import (
 )
 from service.daemon import build_service
 from service.db import Store
-from service.pipeline import DETECTOR_BLOCK, Ingest, detector_config
+from service.ingest.setup import detector_config
+from service.pipeline import DETECTOR_BLOCK, Ingest
 from service.spool import Spool
 
 RATE = 100.0

@@ -27,7 +27,8 @@ from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import Housekeeping
 from service.events import Events
-from service.pipeline import Ingest, detector_config
+from service.ingest.setup import detector_config
+from service.pipeline import Ingest
 
 FERRARIS = Path("imucal") / "example_ferraris_session.csv"
 FERRARIS_RATE = 102.4
@@ -231,7 +232,7 @@ def test_device_time_ends_learning_as_before_and_counts_every_frame_step(
     ingest, _ = _ingest(sqlite_store, clock, learn_s=30.0)
     _feed(ingest, batch, clock, 29.0)
     ingest.poll()  # the last batch is held a second before the detector's turn
-    assert ingest.learning and ingest._learned_s == pytest.approx(28.99)
+    assert ingest.learning and ingest.learner.learned_s == pytest.approx(28.99)
     _feed(ingest, batch[2900:], clock, 2.0)
     h = ingest.learning_health()
     assert h["ended_by"] == "device_time" and h["message"].startswith("learned from the first")

@@ -138,7 +138,7 @@ def test_daemon_reads_nav_over_udp_and_stores_the_latitude(
             with httpx.Client(base_url=base, timeout=30) as http:
                 health = http.get("/health").json()
         cols = _stored_with_ship(service, session.n_holds)
-        rest = service.ingest._rest
+        rest = service.ingest.rest_check.reference
         events = [e["message"] for e in service.store.events(100) if e["kind"] == "nav"]
     nav = health["service"]["nav"]
     assert nav["state"] == "ok" and nav["url"] == "udp://127.0.0.1:0" and nav["fixes"] >= 4
@@ -194,13 +194,13 @@ def test_hull_daemon_takes_its_latitude_from_a_serial_talker(tmp_path, berth, se
     try:
         with serve(settings) as (_, service):
             # no latitude assumed: gravity anywhere between the equator's and the pole's
-            assert service.ingest._hull.ref.gravity_unknown_g > 0
+            assert service.ingest.hull.detector.ref.gravity_unknown_g > 0
             service.nav.start()
             with Talker(talker.send):
                 assert _wait_until(lambda: service.nav.latitude_deg() is not None)
                 replay(service, len(data))
             cols = _stored_with_ship(service, session.n_holds)
-            ref = service.ingest._hull.ref
+            ref = service.ingest.hull.detector.ref
             health = service.health()
     finally:
         talker.close()

@@ -113,7 +113,7 @@ def test_accelerometer_only_windows_do_not_refine_the_floor() -> None:
     """A hand-held window's gyro moving variance is tremor, not the gyro's noise floor."""
     from recal.detect.static import detect_static
     from recal.sim.session import simulate_handheld
-    from service.pipeline import FloorKeeper
+    from service.ingest.floor_keeper import FloorKeeper
 
     s = simulate_handheld(seed=0)  # 2 windows with both triads still, 8 for the accel only
     windows = detect_static(s.time_s, s.gyro_out, s.accel_out).windows
