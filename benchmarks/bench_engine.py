@@ -19,7 +19,7 @@ Every number is printed with its target and PASS/MISS.
 
 "With slews": sample-level sessions (KVH-like captures: holds joined by slews, both triads, LM),
 calibrated without and with the slews; the gyro's antisymmetric misalignment is compared in the
-gauge a slew fit holds (the accelerometer frame, recal.detect.slews.in_accel_frame).
+gauge a slew fit holds (the accelerometer frame, recal.detect.slew_gauge.in_accel_frame).
 """
 
 from __future__ import annotations
@@ -156,7 +156,7 @@ def accuracy(datasets: int, mc: int, lm_datasets: int) -> dict:
 def slews_accuracy(seeds: int) -> dict:
     """Per seed, without and with slews: gyro coefficients held, worst |error| / sigma over the
     estimated gyro coefficients, antisymmetric gyro errors and their predicted 1-sigma."""
-    from recal.detect.slews import in_accel_frame
+    from recal.detect.slew_gauge import in_accel_frame
     from recal.sim.session import session_positions, session_slews, simulate_session
 
     out: dict[str, dict[str, list]] = {"without slews": {}, "with slews": {}}

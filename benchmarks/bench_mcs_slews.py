@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recal.detect.slews import Slews, in_accel_frame
+from recal.detect.slew_data import Slews
+from recal.detect.slew_gauge import in_accel_frame
 from recal.model.positions import Positions
 from recal.sim.session import simulate_session
 from recal.solve import calibrate as calibrate_module

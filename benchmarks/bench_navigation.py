@@ -11,7 +11,7 @@ which does not age). The aged unit is recalibrated from a simulated 24-position 
 the old set as prior, from the window means alone (the papers' method); and, as recal calibrate
 does by default (the service uses the slews too, with MCS-NAFSA), by LM from a sample-level
 session of the same 24 positions (600 s holds at 50 Hz) with the 5 s slews between them
-(recal.detect.slews), which pins the gyro misalignment.
+(recal.detect.slew_groups), which pins the gyro misalignment.
 
 Table 5 structure: 24 h static navigation after a 300 s alignment, at Harbin's latitude, with
 (a) the old coefficients, (b) MCS-NAFSA, (c) LM, (d) the truth. Each 24 h error is printed with

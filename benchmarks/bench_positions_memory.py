@@ -96,7 +96,7 @@ def positions(capture: Path, out: Path, *flags: str) -> list[str]:
 def bulk(capture: Path) -> list[str]:
     code = (
         "import sys, drivers\n"
-        "from recal.detect.static import detect_static\n"
+        "from recal.detect.static_detector import detect_static\n"
         "b, c = drivers.decode_bulk(open(sys.argv[1], 'rb').read(), 'kvh-a')\n"
         "r = detect_static(b.time_s, b.gyro_dph, b.accel_g, b.temperature_c, b.valid, "
         "b.lost_before)\n"

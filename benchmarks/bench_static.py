@@ -4,7 +4,7 @@ Run: python benchmarks/bench_static.py [--minutes 60] [--rate 1000]. About half 
 
 A synthetic 1 kHz session (default one hour, 3.6 million frames) of 50 s poses joined by 10 s
 slews, with FOG-like gyro noise (deg/h), accel noise (g), a temperature ramp, a few invalid
-frames and sequence gaps, goes through ``recal.detect.static`` in bulk form (``detect_static``) and in
+frames and sequence gaps, goes through ``recal.detect.static_detector`` in bulk form (``detect_static``) and in
 incremental form (``StaticDetector.feed`` with 4096-frame chunks, as a serial reader delivers
 them). Then the same session as the bytes a KVH 1750 sends (Format A, delta angles in rad) goes
 through the whole pipeline: ``drivers.decode_bulk`` + ``detect_static``, and
@@ -24,7 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from recal.detect.static import DetectorConfig, StaticDetector, detect_static
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector, detect_static
 
 TARGET = 100.0  # x real time
 CHUNK = 4096

@@ -44,10 +44,10 @@ from recal.model.coefficients import CoefficientSet  # noqa: E402
 from recal.sim.simulate import simulate_positions  # noqa: E402
 from service.capture_sim import kvh_like_truth  # noqa: E402
 from service.config import SchedulerSettings, Settings, SiteSettings  # noqa: E402
-from service.db import Store  # noqa: E402
 from service.events import Events  # noqa: E402
 from service.publish import Publisher  # noqa: E402
 from service.scheduler import Scheduler  # noqa: E402
+from service.store.repository import Store  # noqa: E402
 
 LAT = 45.0
 GYRO_STEP, ACCEL_STEP = 600e-6, 5e-6

@@ -41,7 +41,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from recal.detect.slews import Slews, quat_from_rotvec, quat_multiply, rotate_back
+from recal.detect.quaternions import quat_from_rotvec, quat_multiply, rotate_back
+from recal.detect.slew_data import Slews
 from recal.model.positions import Positions
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions

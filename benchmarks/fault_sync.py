@@ -266,9 +266,9 @@ class Vessel:
         """Per vessel table its rows, by (instance, row id): the content digest of each as the
         wire carries it (``acknowledged``: only those the shore acknowledged, out of the
         outbox); the outbox rows left."""
-        from service.db import Store
         from service.fleet.batch import content_digest
         from service.store.outbox import OutboxEntry
+        from service.store.repository import Store
         from service.sync.batch import wire_row
 
         with contextlib.closing(sqlite3.connect(self.db)) as conn:
@@ -290,7 +290,7 @@ class Vessel:
         return out, len(waiting)
 
     def instance(self) -> str:
-        from service.db import Store
+        from service.store.repository import Store
 
         store = Store(f"sqlite:///{self.db}")
         try:

@@ -2,7 +2,7 @@
 
 A :class:`Recording` can be read more than once (``recal positions`` reads it up to three
 times) and never holds more than one chunk of its input in memory. ``frames(on_bytes)`` yields
-dicts with the keyword arguments of ``recal.detect.static.StaticDetector.feed`` (time_s, gyro, accel,
+dicts with the keyword arguments of ``recal.detect.static_detector.StaticDetector.feed`` (time_s, gyro, accel,
 temperature_c, valid, lost_before) and calls ``on_bytes(n)`` for every n bytes read.
 """
 
@@ -32,7 +32,7 @@ class Recording:
 
     triads: what the input holds (a missing triad is fed as zeros). sample_rate_hz: the rate
     for the detector (None: from the time column). gyro_limits: gyro values at which the
-    output saturates, when the format tells (recal.detect.slews drops a slew that reaches them).
+    output saturates, when the format tells (recal.detect.slew_groups drops a slew that reaches them).
     """
 
     def __init__(

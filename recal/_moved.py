@@ -13,6 +13,10 @@ old modules became packages of the same name (``recal.model``, ``recal.diagnose`
 ``recal.report``); no file or finder can stand at those paths, so those packages forward the old
 module's names through :func:`forward_old_names` in their ``__init__``.
 
+Two 0.2.0 paths that only re-exported other modules went the same way (issue 38):
+``recal.detect.static`` and ``recal.detect.slews`` are in :data:`MOVED` too, and the service's
+``service.db`` is served by a finder of its own table (``service.moved``, :func:`install_table`).
+
 Nothing here holds logic of the modules it forwards to; only names are looked up.
 """
 
@@ -21,7 +25,7 @@ from __future__ import annotations
 import importlib
 import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib.machinery import ModuleSpec
 from types import ModuleType
 from typing import Any
@@ -72,12 +76,52 @@ MOVED: dict[str, tuple[str, ...]] = {
     "recal.safsa": ("recal.solve.safsa",),
     "recal.session": ("recal.sim.session",),
     "recal.simulate": ("recal.sim.simulate",),
-    "recal.slews": ("recal.detect.slews",),
-    "recal.static": ("recal.detect.static", "recal.detect.floor", "recal.detect.windows"),
+    "recal.slews": (
+        "recal.model.reference",  # first: the slew modules import its constants
+        "recal.detect.slew_data",
+        "recal.detect.slew_groups",
+        "recal.detect.slew_collect",
+        "recal.detect.quaternions",
+        "recal.detect.slew_rotation",
+        "recal.detect.slew_gravity",
+        "recal.detect.slew_gauge",
+        "recal.detect.closed_turns",
+        "recal.detect.known_rotations",
+    ),
+    "recal.static": (
+        "recal.detect.floor",  # a module before those that import its names
+        "recal.detect.windows",
+        "recal.detect.static_accel_only",
+        "recal.detect.static_config",
+        "recal.detect.static_report",
+        "recal.detect.static_detector",
+    ),
     "recal.surrogate": ("recal.solve.surrogate",),
     "recal.swarm": ("recal.solve.swarm",),
     "recal.terms": ("recal.model.terms",),
     "recal.trajectory": ("recal.nav.trajectory",),
+    # 0.2.0 paths of modules that only re-exported others (issue 38): the detector's and the
+    # slews' pieces each live in a module of their own
+    "recal.detect.static": (
+        "recal.detect.floor",  # a module before those that import its names
+        "recal.detect.windows",
+        "recal.detect.static_accel_only",
+        "recal.detect.static_config",
+        "recal.detect.static_report",
+        "recal.detect.static_detector",
+    ),
+    "recal.detect.slews": (
+        "recal.model.reference",  # first: the slew modules import its constants
+        "recal.detect.slew_data",
+        "recal.detect.slew_groups",
+        "recal.detect.slew_collect",
+        "recal.detect.quaternions",
+        "recal.detect.slew_rotation",
+        "recal.detect.slew_gravity",
+        "recal.detect.slew_gauge",
+        "recal.detect.closed_turns",
+        "recal.detect.known_rotations",
+    ),
 }
 
 #: Old modules whose path is now a package: old module -> where its names live now.
@@ -165,20 +209,24 @@ def forward_old_names(
 
 class MovedFinder:
     """Import hook (last on ``sys.meta_path``, so a real file always wins) that answers for the
-    old paths of :data:`MOVED` with a forwarding module."""
+    old paths of ``table`` (old module -> the modules its names live in now; :data:`MOVED` by
+    default; the service passes its own, service.moved) with a forwarding module."""
+
+    def __init__(self, table: Mapping[str, tuple[str, ...]] | None = None) -> None:
+        self.table = MOVED if table is None else table
 
     def find_spec(
         self, fullname: str, path: Sequence[str] | None = None, target: ModuleType | None = None
     ) -> ModuleSpec | None:
-        if fullname not in MOVED:
+        if fullname not in self.table:
             return None
-        return ModuleSpec(fullname, self, origin=f"deprecated alias of {MOVED[fullname][0]}")
+        return ModuleSpec(fullname, self, origin=f"deprecated alias of {self.table[fullname][0]}")
 
     def create_module(self, spec: ModuleSpec) -> None:
         return None  # the default module object
 
     def exec_module(self, module: ModuleType) -> None:
-        old, homes = module.__name__, MOVED[module.__name__]
+        old, homes = module.__name__, self.table[module.__name__]
         module.__doc__ = (
             f"Deprecated: moved to {' and '.join(homes)}; this alias is removed in {REMOVED_IN}."
         )
@@ -191,5 +239,10 @@ def install(public: Sequence[str] = ()) -> None:
     names)."""
     global _PUBLIC
     _PUBLIC = frozenset(public)
-    if not any(isinstance(f, MovedFinder) for f in sys.meta_path):
-        sys.meta_path.append(MovedFinder())
+    install_table(MOVED)
+
+
+def install_table(table: Mapping[str, tuple[str, ...]]) -> None:
+    """Put a finder for the old paths of ``table`` on ``sys.meta_path``, once per table."""
+    if not any(isinstance(f, MovedFinder) and f.table is table for f in sys.meta_path):
+        sys.meta_path.append(MovedFinder(table))

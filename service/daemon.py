@@ -226,7 +226,7 @@ class Service:
         """The ``sync`` block of ``/health``: the link's state, backlog (outbox rows; None
         while the database does not answer) and traffic; ``state`` ``off`` without
         ``[sync]``."""
-        from service.db import StoreError
+        from service.store.errors import StoreError
         from service.sync import off_block
 
         try:
@@ -249,7 +249,7 @@ class Service:
         return self.last_tick - self.last_sync >= SYNC_EVERY_S
 
     def sync_published(self) -> None:
-        from service.db import StoreError
+        from service.store.errors import StoreError
 
         try:
             current = self.store.current()
@@ -304,8 +304,8 @@ def _safe_meta(settings: Settings) -> dict[str, Any]:
 def _starting_prior(store: Any, settings: Settings) -> Any:
     """The coefficients the service starts from: the accepted version, else ``prior_path``
     (None without either). The rest check converts the outputs to physics with them."""
-    from service.db import StoreError
     from service.startup import read_prior
+    from service.store.errors import StoreError
     from service.triggers import accepted_coefficients
 
     try:
@@ -323,10 +323,10 @@ def _starting_prior(store: Any, settings: Settings) -> Any:
 
 def build_service(settings: Settings, with_reader: bool = True, runner: Any = None) -> Service:
     """Open the store, the publisher, the pipeline and (optionally) the serial reader."""
-    from service.db import Store
     from service.publish import Publisher
     from service.spool import Spool
     from service.startup import prepare_state_dir, spool_folder
+    from service.store.repository import Store
 
     prepare_state_dir(settings)  # the defaults' folder: never the working folder
     publisher = Publisher(settings.publish_path)  # checks the path first: nothing opened yet

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from recal.nav.navigation import NMI_M
 from recal.solve.result import CalibrationResult
 from service.config import GateSettings
-from service.db import CalibrationRecord
+from service.store.records import CalibrationRecord
 
 if TYPE_CHECKING:
     from recal.nav.ins_error import NavigationImpact

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from recal.model.published import published_metadata
-from service.db import CalibrationRecord
+from service.store.records import CalibrationRecord
 
 log = logging.getLogger("recal.publish")
 

@@ -24,11 +24,11 @@ from recal.model.positions import Positions
 from recal.solve.calibrate import check_design
 from recal.solve.options import CalibrationOptions
 from service.config import Settings
-from service.db import StoreError
 from service.events import Events
 from service.jobs import JobEnd, JobRunner
 from service.nav import NO_LATITUDE, working_latitude
 from service.recalibration import JobOutcome, calibration_job, months_since
+from service.store.errors import StoreError
 from service.triggers import (
     Evaluation,
     accepted_coefficients,
@@ -446,7 +446,7 @@ class Scheduler:
 
     def _store_outcome(self, outcome: JobOutcome, end: JobEnd, trigger: str, ids: list[int],
                        previous: Any, method: str, why: dict[str, Any]) -> None:  # fmt: skip
-        from service.db import CalibrationRecord
+        from service.store.records import CalibrationRecord
 
         job = end.job
         ended = {"job": job, "state": "ended", "status": end.status,

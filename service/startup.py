@@ -110,7 +110,8 @@ def write_fleet_prior_file(path: str, prior: Any) -> None:
 
 def check_database(url: str, timeout_s: float = 5.0) -> None:
     """The database opens (a SQLite file's folder exists and is writable; a server answers)."""
-    from service.db import Store, StoreError
+    from service.store.errors import StoreError
+    from service.store.repository import Store
 
     folder = sqlite_folder(url)
     if folder is not None:

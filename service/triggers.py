@@ -95,7 +95,7 @@ def describe_reason(why: dict[str, Any] | None) -> str:
 
 
 def stored_slews(store: Any, positions: Positions, ids: list[int]) -> Any:
-    """The stored slews between these positions as a :class:`recal.detect.slews.Slews` in their rows
+    """The stored slews between these positions as a :class:`recal.detect.slew_data.Slews` in their rows
     (None when there are none)."""
     records = store.slews(ids)
     if not records:

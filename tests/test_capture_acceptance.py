@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from drivers import DecoderConfig, decode_bulk
-from recal.detect.static import DetectorConfig
+from recal.detect.static_config import DetectorConfig
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.session import Session, simulate_session

@@ -11,7 +11,8 @@ import pytest
 import service.cli.recording as recording
 from drivers import decode_bulk, encode_frames, physical_to_raw_gyro
 from drivers.xsens_text import load_xsens_pair
-from recal.detect.static import DetectorConfig, detect_static
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import detect_static
 from recal.detect.windows import windows_to_columns
 from recal.model.positions import Positions
 from service.cli.main import main

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from recal.detect.slews import Slews
+from recal.detect.slew_data import Slews
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import axis_angle, simulate_session
 from recal.sim.simulate import NoiseSpec

@@ -29,7 +29,7 @@ from drivers.registry import (
 from service.cli.main import main
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service
-from service.db import Store
+from service.store.repository import Store
 
 ACC, GYRO = "xsens_static_poses_acc.txt", "xsens_static_poses_gyro.txt"
 RATE = 100.0  # Hz, the Xsens recording's

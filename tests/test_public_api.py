@@ -165,8 +165,8 @@ MOVED = {
     "recal.safsa": ("SafsaConfig", "recal.solve.safsa"),
     "recal.session": ("Session", "recal.sim.session"),
     "recal.simulate": ("simulate_positions", "recal.sim.simulate"),
-    "recal.slews": ("Slews", "recal.detect.slews"),
-    "recal.static": ("StaticDetector", "recal.detect.static"),
+    "recal.slews": ("Slews", "recal.detect.slew_data"),
+    "recal.static": ("StaticDetector", "recal.detect.static_detector"),
     "recal.surrogate": ("motion_names", "recal.solve.surrogate"),
     "recal.swarm": ("SwarmConfig", "recal.solve.swarm"),
     "recal.terms": ("Term", "recal.model.terms"),
@@ -175,6 +175,11 @@ MOVED = {
     "recal.static:NoiseFloorEstimator": ("NoiseFloorEstimator", "recal.detect.floor"),
     "recal.static:windows_to_columns": ("windows_to_columns", "recal.detect.windows"),
     "recal.mcs:PROGRESS_POLL_S": ("PROGRESS_POLL_S", "recal.runtime.pool"),
+    # 0.2.0 paths of modules that only re-exported others (issue 38)
+    "recal.detect.static": ("DetectorConfig", "recal.detect.static_config"),
+    "recal.detect.static:REJECT_REASONS": ("REJECT_REASONS", "recal.detect.static_report"),
+    "recal.detect.slews": ("SlewTracker", "recal.detect.slew_collect"),
+    "recal.detect.slews:OMEGA_IE_DEG_H": ("OMEGA_IE_DEG_H", "recal.model.reference"),
     # old modules whose path is now a package of the same name
     "recal.diagnose": ("diagnose", "recal.diagnose.effects"),
     "recal.model": ("Model", "recal.model.error_model"),

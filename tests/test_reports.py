@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from recal.detect.floor import estimate_noise_floor
-from recal.detect.static import DetectorConfig, StaticDetector
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.model.terms import catalogue_terms

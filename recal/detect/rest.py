@@ -15,7 +15,7 @@ excess rate lies mostly along gravity: a heading change), ``swinging`` (about a 
 a net roll or pitch change), ``rate_low`` (less than Earth's rate: no motion does that; a unit or
 rate setting is wrong, or the window is not what it seems), ``accelerating`` (the specific force
 is not gravity: heave, surge, a crane, a vehicle). Pure numpy; used by the static detector
-(:mod:`recal.detect.static`) and the hull detector (:mod:`recal.detect.hull`) alike, so
+(:mod:`recal.detect.static_detector`) and the hull detector (:mod:`recal.detect.hull`) alike, so
 ``recal positions`` and the daemon share the one rule.
 """
 

@@ -2,7 +2,7 @@
 consecutive windows) and its side file ``POSITIONS.slews.npz``.
 
 What the arrays hold and why they suffice to integrate the gyro exactly for every parameter
-vector is in :mod:`recal.detect.slews`. Everything here is numpy on arrays in memory: no I/O (the
+vector is in :mod:`recal.detect.slew_groups`. Everything here is numpy on arrays in memory: no I/O (the
 npz is produced and parsed as bytes).
 """
 

@@ -1,6 +1,40 @@
 """Downsampling a slew: its gyro samples reduced to group sums (S_g, W_g, C_g) that keep the
-second-order rotation exact (:mod:`recal.detect.slews`), and the exact algebra on those sums
-(joining consecutive groups, shifting the reference). Vectorised over the samples.
+second-order rotation exact, and the exact algebra on those sums (joining consecutive groups,
+shifting the reference). Vectorised over the samples.
+
+The method (the slew invariant; the pieces: :mod:`recal.detect.slew_data` the data and its side
+file, :mod:`recal.detect.slew_collect` collection from a stream, :mod:`recal.detect.quaternions`
+and :mod:`recal.detect.slew_rotation` the integration, :mod:`recal.detect.slew_gravity` the
+residuals, :mod:`recal.detect.known_rotations`, :mod:`recal.detect.closed_turns`,
+:mod:`recal.detect.slew_gauge`).
+
+The slew invariant: the gyro, integrated over the motion between two static windows, must carry
+the gravity direction measured in the first window onto the one measured in the next.
+
+Norms cannot see a rotation of a triad's frame (docs/reference.md#norms). Integrating the gyro over
+each slew (the samples between two consecutive windows) can: the integrated rotation, applied to
+the calibrated accelerometers' gravity direction of window k, predicts the direction of window
+k + 1, and the two must agree (Tedaldi et al., ICRA 2014, the method of imu_tk). The residual has
+2 degrees of freedom per slew (a rotation about the vertical moves no gravity direction).
+
+Data (what ``recal positions`` keeps beside the CSV, :meth:`Slews.to_npz_bytes`): per slew the
+indices of its two windows, the sample period, the window-k gyro output ``N_ref`` and, over ``G``
+groups of consecutive samples (G = :data:`DEFAULT_GROUPS`, padded with empty groups), three sums
+of the output increments ``n_i = (N_i - N_ref) dt`` (output units x s):
+
+    S_g = sum_i n_i,   W_g = sum_i (m_g - 1 - 2 i) n_i,   C_g = 1/2 sum_{i<j} n_i x n_j
+
+Because the gyro model is affine in its output (``alpha_i = M n_i + c``, with
+``M = u A^-1 diag(1/K)``, ``c = u A^-1 (N_ref / K - b) dt`` and ``u`` = deg/h -> rad/s), the
+second-order (Bortz / BCH) rotation vector of a group, ``sum alpha_i + 1/2 sum_{i<j} alpha_i x
+alpha_j``, is exactly
+
+    phi_g = M S_g + m_g c + 1/2 (M W_g) x c + cof(M) C_g,    cof(M) = det(M) M^-T
+
+for every parameter vector: the per-sample coning correction survives the downsampling, and the
+engine integrates ``G`` increments per slew instead of every sample. The groups' quaternions are
+multiplied by a pairwise (tree) product: log2(G) vectorised steps for all P parameter vectors and
+all slews at once.
 """
 
 from __future__ import annotations

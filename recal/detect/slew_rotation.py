@@ -1,5 +1,5 @@
 """The gyro integrated over each slew, batched over parameter vectors: per-group rotation
-vectors from the group sums (the algebra in :mod:`recal.detect.slews`), their quaternions chained
+vectors from the group sums (the algebra in :mod:`recal.detect.slew_groups`), their quaternions chained
 by a pairwise product (:func:`slew_rotations`), the summed rotation vector that keeps whole turns
 (:func:`integrated_rotvec`), and a sample-by-sample reference integration for checks.
 """

@@ -103,7 +103,7 @@ def information_gain(
     watch: Sequence[str] = WATCH,
 ) -> InformationGain:
     """The expected sharpening of ``coefficients`` (covariance as :func:`recal.diagnose.drift.drift_inputs`
-    takes it) if ``positions`` (new windows; ``slews`` between them, a :class:`recal.detect.slews.Slews`
+    takes it) if ``positions`` (new windows; ``slews`` between them, a :class:`recal.detect.slew_data.Slews`
     in their rows) were added to the data they were fitted on."""
     from recal.diagnose.drift_covariance import coefficient_covariance
     from recal.diagnose.drift_windows import accepted_model

@@ -173,7 +173,7 @@ class RecordingEnvelope(TraceEnvelope):
     def on_traces(
         self, *, first_index, time_s, gyro, accel, temperature_c, valid, accel_trace, gyro_trace
     ) -> None:
-        """recal.detect.static.StaticDetector's ``on_traces`` callback: one batch of frames."""
+        """recal.detect.static_detector.StaticDetector's ``on_traces`` callback: one batch of frames."""
         values = np.column_stack((accel_trace, gyro_trace, gyro, accel, temperature_c))
         values[~valid, 2:8] = np.nan  # an invalid frame may hold garbage
         self.feed(time_s, values)

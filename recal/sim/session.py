@@ -308,7 +308,7 @@ def _rotate_into_body(v: np.ndarray, axis: np.ndarray, theta: np.ndarray) -> np.
 def session_slews(session: Session, groups: int = DEFAULT_GROUPS) -> Slews:
     """The slews of a simulated session, as ``recal positions`` keeps them: between holds k and
     k + 1 the gyro outputs from the frame after hold k's last to hold k + 1's first, referenced
-    to hold k's mean output (:func:`recal.detect.slews.build_slews`). Hold rows as in
+    to hold k's mean output (:func:`recal.detect.slew_groups.build_slews`). Hold rows as in
     :func:`session_positions`."""
     period = 1.0 / session.rate_hz
     pieces = []

@@ -36,8 +36,9 @@ from service.api.models import (
 from service.api.security import OriginGuard, add_origin_guard, request_refusal
 from service.config import ApiSettings
 from service.dashboard import mount_dashboard
-from service.db import Store, StoreError
 from service.publish import Publisher
+from service.store.errors import StoreError
+from service.store.repository import Store
 
 __all__ = [
     "MAX_DB_INT",

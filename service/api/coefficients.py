@@ -9,7 +9,8 @@ from fastapi import APIRouter, HTTPException, Query
 
 from service.api.models import MAX_DB_INT, CalibrationOut, CalibrationSummaryOut, DbId
 from service.api.state import StoreDep
-from service.db import CalibrationRecord, Store
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 
 #: Largest page of whole records from ``/coefficients/history?full=true``.
 MAX_FULL_HISTORY = 100

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query, Request
 
 from service.api.models import EventOut, HealthOut
 from service.api.state import StoreDep
-from service.db import StoreError
+from service.store.errors import StoreError
 from service.sync.stats import off_block
 
 router = APIRouter()

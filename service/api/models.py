@@ -8,7 +8,7 @@ from typing import Annotated, Any
 from fastapi import Path
 from pydantic import BaseModel
 
-from service.db import CalibrationRecord
+from service.store.records import CalibrationRecord
 
 #: Largest id or version a request may name: the schema's INTEGER columns are 32-bit signed
 #: on PostgreSQL (a larger value there is a database error, not a missing row).

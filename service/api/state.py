@@ -12,8 +12,8 @@ from fastapi import Depends, FastAPI, Request
 
 from service.broadcast import Broadcast
 from service.config import ApiSettings
-from service.db import Store
 from service.publish import Publisher
+from service.store.repository import Store
 
 #: ``trigger()`` queues a manual recalibration: a job id, or None / RuntimeError when it cannot.
 Trigger = Callable[[], int | str | None]

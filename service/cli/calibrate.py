@@ -273,7 +273,7 @@ def _check_prior_plugins(prior, terms: dict, path: str) -> None:
 
 
 def load_slews(args: argparse.Namespace, positions=None):
-    """The slews side file of the positions (recal.detect.slews.Slews), or None (--no-slews, absent,
+    """The slews side file of the positions (recal.detect.slew_data.Slews), or None (--no-slews, absent,
     or written for another positions file: ignored with one line on stderr saying why, an
     error with an explicit --slews). Nothing is announced as used here: whether the fit uses
     them is known only after it (:func:`announce_slews`)."""
@@ -343,7 +343,7 @@ def announce_slews(args: argparse.Namespace, slews, used: bool, notes: list[str]
 
 
 def load_known_rotations(args: argparse.Namespace, slews):
-    """``--known-rotations FILE`` (recal.detect.slews.KnownRotations), or None."""
+    """``--known-rotations FILE`` (recal.detect.known_rotations.KnownRotations), or None."""
     path = getattr(args, "known_rotations", None)
     if path is None:
         return None

@@ -56,8 +56,9 @@ def open_vessel_store(args: argparse.Namespace, create: bool):  # -> Store
     from pathlib import Path
 
     from service.cli.errors import CliInputError
-    from service.db import Store, StoreError
     from service.startup import check_sqlite_folder, sqlite_folder
+    from service.store.errors import StoreError
+    from service.store.repository import Store
 
     url = _url(args)
     folder = sqlite_folder(url)
@@ -90,7 +91,7 @@ def run_upgrade(args: argparse.Namespace) -> int:
     import logging
 
     from service.cli.errors import CliInputError
-    from service.db import StoreError
+    from service.store.errors import StoreError
 
     store = open_vessel_store(args, create=True)
     log = logging.getLogger("alembic.runtime.migration")  # "Running upgrade 0001 -> 0002, ..."
@@ -116,7 +117,7 @@ def run_upgrade(args: argparse.Namespace) -> int:
 
 def run_current(args: argparse.Namespace) -> int:
     from service.cli.errors import CliInputError
-    from service.db import StoreError
+    from service.store.errors import StoreError
 
     store = open_vessel_store(args, create=False)
     try:

@@ -107,8 +107,8 @@ def _settings(args: argparse.Namespace):  # -> ShoreSettings
 
 def _open(settings):  # -> FleetStore
     from service.cli.errors import CliInputError
-    from service.db import StoreError
     from service.fleet.server import open_store
+    from service.store.errors import StoreError
 
     try:
         return open_store(settings)
@@ -124,7 +124,7 @@ def run_serve(args: argparse.Namespace) -> int:
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(name)s %(message)s")
     logging.getLogger("alembic.runtime.plugins").setLevel(logging.WARNING)
     from service.cli.errors import CliInputError
-    from service.db import StoreError
+    from service.store.errors import StoreError
 
     try:
         return serve(
@@ -138,7 +138,7 @@ def run_serve(args: argparse.Namespace) -> int:
 
 def run_add_unit(args: argparse.Namespace) -> int:
     from service.cli.errors import CliInputError
-    from service.db import StoreError
+    from service.store.errors import StoreError
 
     store = _open(_settings(args))
     try:
@@ -166,8 +166,8 @@ def run_reanalyse(args: argparse.Namespace) -> int:
 
     from service.cli.common import atomic_write, load_plugin, parse_effects, progress_bar, read_text
     from service.cli.errors import CliInputError
-    from service.db import StoreError
     from service.fleet.reanalysis import ClusterError, reanalyse
+    from service.store.errors import StoreError
 
     if args.workers < 1 or args.windows < 2 or args.mc < 1:
         raise CliInputError("--workers and --mc must be at least 1 and --windows at least 2")

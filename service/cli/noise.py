@@ -2,7 +2,7 @@
 
 The recording is read as by ``recal positions`` (same input and detector options, shared from
 :mod:`service.cli.positions`): a first pass learns the noise floor, a second finds the still
-stretches (:mod:`recal.detect.static`), a third keeps the samples inside them. Their pooled overlapping
+stretches (:mod:`recal.detect.static_detector`), a third keeps the samples inside them. Their pooled overlapping
 Allan deviation (:mod:`recal.detect.noise`) gives per axis the white noise (angle random walk of a
 gyro, velocity random walk of an accelerometer), the bias instability and the correlation time
 of a fitted white + Gauss-Markov model; ``--report`` plots the Allan deviations with their

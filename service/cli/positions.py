@@ -4,7 +4,7 @@ Inputs (:mod:`service.cli.recording`, all streamed in chunks: memory does not gr
 recording's length): a KVH capture (``--format kvh-a|kvh-b|kvh-c``, decoded by
 ``drivers.StreamDecoder``; gyro in deg/h, accel in g), an Xsens text pair (``--format
 xsens-text``: the acc file and the gyro file, raw counts) or a CSV log (``--format csv``,
-docs/reference.md#csv, output units). The detector is ``recal.detect.static``; the CSV columns are
+docs/reference.md#csv, output units). The detector is ``recal.detect.static_detector``; the CSV columns are
 docs/reference.md#positions plus ``frames_lost``, ``frames_invalid`` and ``gyro_still``
 (0 for a pose kept for the accelerometer only: the gyro trembled, docs/static.md
 "Per-triad stillness"). The
@@ -12,7 +12,7 @@ summary on stderr counts the poses (still stretches of the accelerometer) and sa
 rejected stretch was rejected.
 
 Beside the CSV, a third pass keeps the gyro samples of each slew (the motion between two
-consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal.detect.slews), which
+consecutive windows) as downsampled increments in ``POSITIONS.slews.npz`` (recal.detect.slew_groups), which
 ``recal calibrate`` uses for the slew invariant. A slew with lost or invalid frames or a
 saturated gyro sample is dropped and counted; its windows stay in the CSV.
 
@@ -32,7 +32,7 @@ from service.cli.ship import add_ship_options, print_lines, read_ship_log
 #: Format flags add_kvh_unit_options adds (with their choices), not add_input_options.
 KVH_UNIT_FLAGS = ("--gyro-output", "--gyro-units", "--temp-units")
 _PROGRESS_MIN_BYTES = 16 << 20  # below this a bar would only flicker
-#: Frames per detector feed, counted from the first frame: recal.detect.static.detect_static's slices,
+#: Frames per detector feed, counted from the first frame: recal.detect.static_detector.detect_static's slices,
 #: so the stream gives the bulk path's windows to the last bit (any chunking agrees to 1e-15).
 DETECTOR_BLOCK = 1 << 16
 
@@ -335,7 +335,7 @@ def slews_path(positions: Path | str) -> Path:
 
 
 def _write_slews(path: Path, recording, windows, rate_hz: float | None) -> None:
-    """Pass 3: the gyro samples between consecutive windows, as recal.detect.slews increments."""
+    """Pass 3: the gyro samples between consecutive windows, as recal.detect.slew_groups increments."""
     from recal.detect.slew_collect import SlewCollector
     from service.cli.common import atomic_write
 
@@ -364,7 +364,7 @@ def has_thresholds(args: argparse.Namespace) -> bool:
 
 
 def detector_config(args: argparse.Namespace, recording, floor):
-    """The detector's settings: what the user gave; recal.detect.static's defaults for the rest."""
+    """The detector's settings: what the user gave; recal.detect.static_detector's defaults for the rest."""
     from recal.detect.static_config import DetectorConfig
 
     given = {
@@ -466,7 +466,7 @@ def _hint_hull(windows) -> None:
 
 
 def learn_noise_floor(recording, args: argparse.Namespace):
-    """Pass 1: the moving-variance floor of the whole recording (recal.detect.static)."""
+    """Pass 1: the moving-variance floor of the whole recording (recal.detect.static_detector)."""
     from recal.detect.floor import NoiseFloorEstimator
 
     given = {"window_s": args.window, "sample_rate_hz": recording.sample_rate_hz}

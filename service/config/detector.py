@@ -10,7 +10,7 @@ from service.config.section import Section
 
 
 class DetectorSettings(Section):
-    """The static detector. Durations left unset follow the device rate (recal.detect.static); the
+    """The static detector. Durations left unset follow the device rate (recal.detect.static_detector); the
     thresholds come, in this order, from explicit values, the noise floor stored for the device
     (reused after a restart: the unit may be moving then), an initial still period
     (init_still_s), or the quietest stretches of the first ``learn_s`` seconds."""

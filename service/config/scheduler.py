@@ -58,7 +58,7 @@ class SchedulerSettings(Section):
     )
     use_slews: bool = Field(
         True,
-        description="calibrate the gyro from the stored motion between windows too (recal.detect.slews)",
+        description="calibrate the gyro from the stored motion between windows too (recal.detect.slew_groups)",
     )
     turn_closure_deg: float = Field(
         0.0,

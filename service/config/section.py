@@ -20,7 +20,7 @@ class Section(BaseModel):
 
 
 def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:
-    """``cls`` (a dataclass of a lower layer, e.g. ``recal.detect.static.DetectorConfig`` or
+    """``cls`` (a dataclass of a lower layer, e.g. ``recal.detect.static_config.DetectorConfig`` or
     ``drivers.DecoderConfig``) from the fields of a settings ``section`` it shares by name, plus
     ``extra``: no field-by-field copy to fall out of step when either side gains a field."""
     names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]

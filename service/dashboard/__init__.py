@@ -20,7 +20,8 @@ from fastapi import FastAPI
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
-from service.db import CalibrationRecord, Store
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 
 STATIC = Path(str(resources.files(__package__) / "static"))
 #: Plotly sets element styles and adds one <style> element, hence 'unsafe-inline' for styles

@@ -27,12 +27,12 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, BeforeValidator, Field
 
 from recal import __version__
-from service.db import StoreError
 from service.fleet.batch import FORMAT, INSTANCE, MAX_ID, MAX_NAME, BatchError, read_batch
 from service.fleet.config import ShoreApiSettings
 from service.fleet.overview import overview as fleet_overview
 from service.fleet.priors import FleetPriors
 from service.fleet.store import FleetStore, Unit
+from service.store.errors import StoreError
 
 log = logging.getLogger("recal.fleet")
 

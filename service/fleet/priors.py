@@ -41,8 +41,8 @@ from typing import Any
 from sqlalchemy import case, func, select
 from sqlalchemy.exc import IntegrityError
 
-from service.db import StoreError
 from service.fleet.schema import PriorRow, UnitRow, VersionRow
+from service.store.errors import StoreError
 
 log = logging.getLogger(__name__)
 

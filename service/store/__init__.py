@@ -9,7 +9,8 @@
 - :mod:`~service.store.engine`: engines per backend (SQLite's WAL, locking and pragmas);
 - :mod:`~service.store.errors`: ``StoreError`` and its one-line messages.
 
-``service.db`` re-exports the names callers use.
+``service.db``, the 0.2.0 path, forwards the names with a DeprecationWarning until 0.3.0
+(service.moved).
 """
 
 from __future__ import annotations

@@ -149,7 +149,7 @@ class Store:
         """Store positions (name -> (M,) array, docs/reference.md#positions); returns their ids.
 
         The columns are validated as a :class:`Positions` first (RecalInputError if bad).
-        ``slews``: ``(first row, second row, recal.detect.slews.ReducedSlew)`` between these windows,
+        ``slews``: ``(first row, second row, recal.detect.slew_collect.ReducedSlew)`` between these windows,
         stored in the same transaction; row -1 is the window stored before, ``previous_id``
         (a slew whose first window is unknown is skipped). ``period_s``: gyro sample period.
         ``spool_key``: the batch's spool key; when positions with it are already stored (a

@@ -129,7 +129,7 @@ class NoiseFloorRow(Base):
 
 
 class SlewRow(Base):
-    """The motion between two stored windows, reduced to group sums (recal.detect.slews), or the
+    """The motion between two stored windows, reduced to group sums (recal.detect.slew_groups), or the
     reason it was dropped (``dropped``; then ``data`` is NULL). ``data`` holds float64 values:
     the first window's mean gyro output (3), then per group its sample count, S, W and C
     (``groups`` x 10)."""

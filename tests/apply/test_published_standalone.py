@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.db import CalibrationRecord
 from service.publish import Publisher
+from service.store.records import CalibrationRecord
 
 ROOT = Path(__file__).resolve().parents[2]
 N = 3000

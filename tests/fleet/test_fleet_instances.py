@@ -17,10 +17,11 @@ from sqlalchemy import text, update
 
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
-from service.db import CalibrationRecord, Store
 from service.fleet.batch import content_digest
 from service.fleet.schema import WindowRow
 from service.store.outbox import OutboxEntry
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 from service.sync import SyncThread
 from service.sync.batch import build, wire_row
 

@@ -10,10 +10,11 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import create_engine, inspect
 
-from service.db import Store, StoreError
 from service.fleet.migrations import VERSION_TABLE, head
 from service.fleet.schema import FleetBase
 from service.fleet.store import FleetStore, UnitExistsError, UnknownUnitError, token_hash
+from service.store.errors import StoreError
+from service.store.repository import Store
 
 
 def test_the_migrations_build_the_models_schema(fleet_store: FleetStore, fleet_url: str) -> None:
@@ -54,7 +55,7 @@ def test_the_shore_shares_a_database_with_the_vessel(fleet_url: str) -> None:
         shore.close()
         vessel.close()
         engine = create_engine(fleet_url)
-        from service.db import Base
+        from service.store.rows import Base
 
         Base.metadata.drop_all(engine)
         with engine.begin() as conn:

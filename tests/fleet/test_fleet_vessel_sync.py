@@ -15,8 +15,9 @@ from fault_proxy import FaultProxy
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
 from service.api import create_app
-from service.db import CalibrationRecord, Store
 from service.publish import Publisher
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 from service.sync import SyncThread
 
 UNIT = "KVH-1750-SN0042"
@@ -36,7 +37,7 @@ def vessel(tmp_path: Path) -> Store:
     version and two events (the outbox holds them all)."""
     import numpy as np
 
-    from recal.detect.slews import ReducedSlew
+    from recal.detect.slew_collect import ReducedSlew
 
     store = Store(f"sqlite:///{tmp_path / 'vessel.db'}")
     store.create_schema()

@@ -225,7 +225,7 @@ def test_the_sync_client_reports_its_backlog(tmp_path) -> None:
     import gzip
     import json
 
-    from service.db import Store
+    from service.store.repository import Store
     from service.sync.batch import build
 
     store = Store(f"sqlite:///{tmp_path / 'vessel.db'}")

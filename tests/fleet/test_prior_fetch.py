@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from service.config import Settings
-from service.db import Store
 from service.startup import read_fleet_prior_file
+from service.store.repository import Store
 from service.sync import SyncThread
 
 NEW_UNIT = "KVH-1750-SN0999"

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from service.cli.main import main
-from service.db import Store
+from service.store.repository import Store
 
 ROOT = Path(__file__).resolve().parents[2]
 

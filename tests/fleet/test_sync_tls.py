@@ -13,9 +13,9 @@ import pytest
 import trustme
 
 from service.cli.main import main
-from service.db import Store
 from service.fleet.config import ShoreApiSettings
 from service.fleet.store import FleetStore
+from service.store.repository import Store
 
 SERIAL = "KVH-1750-SN0TLS"
 

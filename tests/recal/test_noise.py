@@ -9,7 +9,7 @@ from scipy.signal import lfilter
 
 from recal.detect import noise
 from recal.detect.noise import pooled_standard_errors
-from recal.detect.static import detect_static
+from recal.detect.static_detector import detect_static
 
 allantools = pytest.importorskip("allantools")
 

@@ -1,4 +1,4 @@
-"""recal.detect.slews: integration of downsampled increments, the simulator's slews, the joint fit."""
+"""recal.detect.slew_groups: integration of downsampled increments, the simulator's slews, the joint fit."""
 
 from __future__ import annotations
 
@@ -7,20 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from recal.detect.slews import (
-    DEG_H_TO_RAD_S,
-    SlewCollector,
-    Slews,
-    SlewTracker,
-    build_slews,
-    compose_groups,
-    group_increments,
-    in_accel_frame,
-    integrate_samples,
-    shift_reference,
-    slew_rotations,
-    slews_from_reduced,
-)
+from recal.detect.slew_collect import SlewCollector, SlewTracker, slews_from_reduced
+from recal.detect.slew_data import Slews
+from recal.detect.slew_gauge import in_accel_frame
+from recal.detect.slew_groups import build_slews, compose_groups, group_increments, shift_reference
+from recal.detect.slew_rotation import DEG_H_TO_RAD_S, integrate_samples, slew_rotations
 from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import ParameterLayout
 from recal.model.reference import OMEGA_IE_RAD_S

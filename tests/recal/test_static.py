@@ -1,4 +1,4 @@
-"""recal.detect.static: the static-window detector, on the real Xsens recording and synthetic sessions."""
+"""recal.detect.static_detector: the static-window detector, on the real Xsens recording and synthetic sessions."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from drivers.xsens_text import load_xsens_pair
-from recal.detect.static import DetectorConfig, StaticDetector, detect_static
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector, detect_static
 from recal.detect.windows import Window, windows_to_columns
 from recal.errors import RecalInputError
 from recal.model.positions import Positions

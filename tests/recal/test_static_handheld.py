@@ -9,11 +9,8 @@ import pytest
 from recal.detect import static_accel_only
 from recal.detect.floor import estimate_noise_floor
 from recal.detect.noise import pooled_standard_errors
-from recal.detect.static import (
-    DetectorConfig,
-    StaticDetector,
-    detect_static,
-)
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector, detect_static
 from recal.detect.windows import windows_to_columns
 from recal.errors import RecalInputError
 from recal.model.error_model import Model

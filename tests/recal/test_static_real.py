@@ -1,4 +1,4 @@
-"""recal.detect.static on real recordings (issue 7): thresholds with no flag, short holds, lost frames,
+"""recal.detect.static_detector on real recordings (issue 7): thresholds with no flag, short holds, lost frames,
 correlated noise. Sample-level sessions from recal.sim.session, KVH bytes from service.capture_sim."""
 
 from __future__ import annotations
@@ -10,11 +10,8 @@ from drivers import DecoderConfig, decode_bulk
 from drivers.xsens_text import load_xsens_pair
 from recal.detect.floor import NoiseFloor, NoiseFloorEstimator, estimate_noise_floor
 from recal.detect.noise import pooled_standard_errors
-from recal.detect.static import (
-    DetectorConfig,
-    StaticDetector,
-    detect_static,
-)
+from recal.detect.static_config import DetectorConfig
+from recal.detect.static_detector import StaticDetector, detect_static
 from recal.detect.windows import windows_to_columns
 from recal.errors import RecalInputError
 from recal.model.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS, Positions

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import recal.detect.closed_turns as closed_turns_mod
-from recal.detect.slews import CHECKED, DECLARED
+from recal.detect.closed_turns import CHECKED, DECLARED
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews
 from recal.sim.simulate import NoiseSpec

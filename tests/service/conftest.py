@@ -24,7 +24,9 @@ from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.result import CalibrationResult
-from service.db import Base, CalibrationRecord, Store
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
+from service.store.rows import Base
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

@@ -18,8 +18,9 @@ from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
 from service.api import create_app
 from service.config import ApiSettings
-from service.db import CalibrationRecord, Store
 from service.publish import Publisher
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 
 MakeRecord = Callable[..., CalibrationRecord]
 TOKEN = "test-token-0123456789abcdef"

@@ -11,8 +11,9 @@ from pydantic import SecretStr
 
 from service.api import create_app
 from service.config import ApiSettings
-from service.db import CalibrationRecord, Store
 from service.publish import Publisher
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 
 #: Written down from ``create_app(...).openapi()`` of service/api.py before the split:
 #: path -> method -> (operationId, summary, response codes).

@@ -16,8 +16,8 @@ from fastapi.testclient import TestClient
 
 from service.api import MAX_DB_INT, create_app
 from service.config import ApiSettings, Settings
-from service.db import Store
 from service.publish import Publisher
+from service.store.repository import Store
 
 TOKEN = "test-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -135,8 +135,8 @@ def test_turn_closure_is_off_by_default_and_reaches_the_jobs(tmp_path):
 
     from recal.model.coefficients import CoefficientSet
     from recal.sim.simulate import simulate_positions
-    from service.db import Store
     from service.scheduler import Scheduler
+    from service.store.repository import Store
 
     assert load_settings().scheduler.turn_closure_deg == 0.0
     cfg = tmp_path / "recal.toml"

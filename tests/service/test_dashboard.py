@@ -65,7 +65,7 @@ def test_advice_names_the_orientation_that_pins_a_weak_coefficient():
 def test_drift_series_is_the_drift_events_and_the_last_reason(sqlite_store, tmp_path):
     from datetime import UTC, datetime
 
-    from service.db import CalibrationRecord
+    from service.store.records import CalibrationRecord
 
     client = TestClient(create_app(sqlite_store, Publisher(tmp_path / "c.json")))
     assert client.get("/dashboard/drift").json() == {"points": [], "last_reason": None}
@@ -97,9 +97,9 @@ def test_the_page_shows_the_versions_heading_error(sqlite_store, tmp_path):
     import re
     from datetime import UTC, datetime
 
-    from service.db import CalibrationRecord
     from service.gate import GateConfig
     from service.recalibration import calibration_job
+    from service.store.records import CalibrationRecord
 
     truth = kvh_like_truth(2)
     pos = simulate_positions(truth, "vessel", n_positions=24, latitude_deg=45, seed=2)

@@ -13,13 +13,17 @@ import numpy as np
 import pytest
 from sqlalchemy import create_engine, insert
 
-from recal.detect.slews import ReducedSlew
+from recal.detect.slew_collect import ReducedSlew
 from recal.errors import RecalInputError
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.simulate import simulate_positions
 from service import migrations
-from service.db import SCHEMA_VERSION, CalibrationRecord, SchemaVersionRow, Store, StoreError
+from service.store.errors import StoreError
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
+from service.store.rows import SchemaVersionRow
+from service.store.schema import SCHEMA_VERSION
 
 
 def simulated(n: int = 24, seed: int = 0, sensors: tuple[str, ...] = ("gyro", "accel")) -> dict:
@@ -281,3 +285,21 @@ def test_window_rate_counts_device_time_per_session(store: Store) -> None:
     assert measured and rate == pytest.approx(8 / 30 * 24)
     fixed = Settings(database_url="sqlite://", scheduler=SchedulerSettings(windows_per_day=100))
     assert windows_per_day(store, fixed) == (100.0, False)  # a set rate wins
+
+
+def test_the_old_service_db_path_warns_and_gives_the_stores_names() -> None:
+    """``service.db`` (0.2.0) only re-exported service.store; it imports until 0.3.0 with a
+    DeprecationWarning naming each name's module (service.moved, docs/api.md)."""
+    from service.store.errors import StoreError as Error
+    from service.store.repository import Store as Repository
+
+    pattern = r"^service\.db is deprecated; import {} from {} .*removed in 0\.3\.0$"
+    with pytest.warns(
+        DeprecationWarning, match=pattern.format("Store", r"service\.store\.repository")
+    ):
+        from service.db import Store as Old
+    with pytest.warns(
+        DeprecationWarning, match=pattern.format("StoreError", r"service\.store\.errors")
+    ):
+        from service.db import StoreError as OldError
+    assert Old is Repository and OldError is Error

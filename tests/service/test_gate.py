@@ -13,8 +13,8 @@ from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
 from recal.solve.result import CalibrationResult
-from service.db import CalibrationRecord
 from service.gate import GateConfig, gate
+from service.store.records import CalibrationRecord
 
 TRUTH = CoefficientSet.seed_truth()
 
@@ -257,9 +257,9 @@ def test_the_scheduler_gives_its_jobs_the_fleet_prior_and_the_months(tmp_path, d
 
     from recal.fleet.prior import CoefficientAgeing, FleetPrior
     from service.config import load_settings
-    from service.db import Store
     from service.scheduler import Scheduler
     from service.startup import write_fleet_prior_file
+    from service.store.repository import Store
 
     path = tmp_path / "fleet.json"
     figure = CoefficientAgeing(1e-5, 1e-6, False, 50, 400)

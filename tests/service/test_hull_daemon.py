@@ -28,10 +28,10 @@ from service.config import (
     SiteSettings,
 )
 from service.daemon import build_service
-from service.db import Store
 from service.ingest.setup import detector_config
 from service.pipeline import DETECTOR_BLOCK, Ingest
 from service.spool import Spool
+from service.store.repository import Store
 
 RATE = 100.0
 LAT = 45.0

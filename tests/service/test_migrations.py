@@ -24,13 +24,17 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import create_engine, inspect, text
 
-from recal.detect.slews import ReducedSlew
+from recal.detect.slew_collect import ReducedSlew
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import SHIP_COLUMNS
 from recal.sim.simulate import simulate_positions
 from service import migrations
 from service.cli.main import main
-from service.db import SCHEMA_VERSION, Base, CalibrationRecord, Store, StoreError
+from service.store.errors import StoreError
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
+from service.store.rows import Base
+from service.store.schema import SCHEMA_VERSION
 
 RELEASE_DB = Path(__file__).parents[1] / "data" / "release_612b796.db"
 #: The tables of the release, with the column that orders their rows.

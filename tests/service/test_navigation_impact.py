@@ -19,9 +19,9 @@ from recal.nav.navigation import NMI_M
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
-from service.db import CalibrationRecord
 from service.gate import GateConfig
 from service.recalibration import calibration_job, navigation_impact_of
+from service.store.records import CalibrationRecord
 
 TRUTH = CoefficientSet.seed_truth()
 LAT = 52.0

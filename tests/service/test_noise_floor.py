@@ -92,7 +92,7 @@ def test_the_old_way_learned_motion_as_still(tmp_path: Path, session) -> None:
 
 
 def test_refined_only_from_windows_that_passed(tmp_path: Path, session) -> None:
-    from service.db import Store
+    from service.store.repository import Store
 
     data, _ = session_to_kvh(session, rng=8)
     _run(_settings(tmp_path), data)
@@ -111,7 +111,7 @@ def test_refined_only_from_windows_that_passed(tmp_path: Path, session) -> None:
 
 def test_accelerometer_only_windows_do_not_refine_the_floor() -> None:
     """A hand-held window's gyro moving variance is tremor, not the gyro's noise floor."""
-    from recal.detect.static import detect_static
+    from recal.detect.static_detector import detect_static
     from recal.sim.session import simulate_handheld
     from service.ingest.floor_keeper import FloorKeeper
 

@@ -7,7 +7,7 @@ import httpx
 import numpy as np
 import pytest
 
-from recal.detect.slews import in_accel_frame
+from recal.detect.slew_gauge import in_accel_frame
 from recal.model.coefficients import CoefficientSet
 from recal.model.error_model import ParameterLayout
 from recal.sim.session import simulate_session

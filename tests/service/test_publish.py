@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from service.db import CalibrationRecord
 from service.publish import Publisher, payload
+from service.store.records import CalibrationRecord
 
 MakeRecord = Callable[..., CalibrationRecord]
 

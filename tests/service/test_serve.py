@@ -12,7 +12,7 @@ import pytest
 
 from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
-from service.db import Store
+from service.store.repository import Store
 
 
 def _free_port() -> int:

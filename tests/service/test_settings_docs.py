@@ -137,7 +137,7 @@ def test_mirrored_sections_build_their_configs_and_share_defaults() -> None:
     import dataclasses
 
     from drivers import DecoderConfig
-    from recal.detect.static import DetectorConfig
+    from recal.detect.static_config import DetectorConfig
     from service.config import DetectorSettings, DeviceSettings, config_from
 
     for section, cls in ((DetectorSettings(), DetectorConfig), (DeviceSettings(), DecoderConfig)):

@@ -18,13 +18,12 @@ import numpy as np
 import pytest
 
 from drivers import DecoderConfig, decode_bulk
-from recal.detect.slews import ReducedSlew
-from recal.detect.static import DetectorConfig
+from recal.detect.slew_collect import ReducedSlew
+from recal.detect.static_config import DetectorConfig
 from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service
-from service.db import Store
 from service.events import Events
 from service.pipeline import Ingest
 from service.spool import (
@@ -35,6 +34,7 @@ from service.spool import (
     default_spool_dir,
     read_entry,
 )
+from service.store.repository import Store
 
 RATE = 100.0
 CONFIG = DetectorConfig(accel_threshold=1e-6, gyro_threshold=1e4, sample_rate_hz=RATE)

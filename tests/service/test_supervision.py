@@ -18,7 +18,8 @@ from recal.sim.session import simulate_session
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service
-from service.db import Store, StoreError
+from service.store.errors import StoreError
+from service.store.repository import Store
 
 RATE = 100.0
 

@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from recal.detect.slews import ReducedSlew
+from recal.detect.slew_collect import ReducedSlew
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
 from service.api import create_app
-from service.db import CalibrationRecord, Store
 from service.events import Events
 from service.publish import Publisher
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 from service.sync import SyncThread
 
 FAST = {"backoff_base_s": 0.05, "backoff_cap_s": 0.2, "connect_timeout_s": 2.0,

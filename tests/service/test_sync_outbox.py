@@ -9,10 +9,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from recal.detect.slews import ReducedSlew
+from recal.detect.slew_collect import ReducedSlew
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import simulate_positions
-from service.db import CalibrationRecord, Store, StoreError, UnknownSessionError
+from service.store.errors import StoreError, UnknownSessionError
+from service.store.records import CalibrationRecord
+from service.store.repository import Store
 
 
 def reduced(seed: int) -> ReducedSlew:
