@@ -113,7 +113,14 @@ def analyse_unit(task: Mapping[str, Any], spec: Mapping[str, Any] | None = None)
     """The per-unit part, on a Dask worker (or here): the drift test of the task's windows
     against its current version, and with ``spec["effects"]`` the refit
     (service.fleet.workbench.refit_unit). Reads no database."""
+    from recal.runtime.allocator import tune_allocator
     from service.fleet.workbench import refit_unit
+
+    # A Dask worker starts with MALLOC_TRIM_THRESHOLD_ set (distributed's nanny
+    # pre-spawn-environ), which pins glibc's mmap threshold: every temporary array of the
+    # tests then costs fresh pages, and a unit took 1.14 s there against 0.59 s in this
+    # process (docs/fleet.md, "Fleet analysis on Dask"). Once per process.
+    tune_allocator()
 
     columns, current = task["columns"], task["current"]
     out: dict[str, Any] = {"unit_id": task["unit_id"], "windows": task["windows"],
