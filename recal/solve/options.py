@@ -45,10 +45,11 @@ class CalibrationOptions:
     cycles: int = 4
     indicator_threshold: float | None = None  # None: 1e-8 in paper mode (seed 000), else off
     t0_c: float = 25.0
-    slews: Slews | None = None  # gyro increments between the windows (recal.detect.slews), or None
+    #: gyro increments between the windows (recal.detect.slew_data), or None
+    slews: Slews | None = None
     known_rotations: KnownRotations | None = None  # commanded rotations of some slews
     #: declared closed turns: the 1-sigma, deg, of a slew that turns whole revolutions about the
-    #: vertical where Earth rate cannot check it (recal.detect.slews.turn_candidates); <= 0 (the
+    #: vertical where Earth rate cannot check it (recal.detect.closed_turns.turn_candidates); <= 0 (the
     #: default): none declared, only turns checked by the Earth-rate headings are closed
     turn_closure_sigma_deg: float = 0.0
     #: bias wander between windows (recal.solve.wander): None (windows independent), "auto"

@@ -5,9 +5,9 @@ At rest every position must satisfy (docs/reference.md#rest)
 * gyro norm:  |w_hat| = Omega_ie (15.04107 deg/h)
 * accel norm: |f_hat| = g_local / g0 (WGS-84 normal gravity, in g)
 * dot product (both triads): w_hat . f_hat = Omega_ie * g_local/g0 * sin(latitude)
-* slew (both triads, with :class:`recal.detect.slews.Slews`): the gyro integrated over the motion
+* slew (both triads, with :class:`recal.detect.slew_data.Slews`): the gyro integrated over the motion
   between windows k and k + 1 carries the gravity direction of window k onto that of window
-  k + 1 (2 residuals per slew, rad; :mod:`recal.detect.slews`)
+  k + 1 (2 residuals per slew, rad; :mod:`recal.detect.slew_gravity`)
 
 :meth:`Problem.residuals` evaluates the whitened residuals of all invariants for a *batch* of
 parameter vectors, shape (P, D) -> (P, R), in one numpy call. LM uses P = 1, a swarm uses
@@ -92,7 +92,7 @@ class Problem:
             "provisional" (no noise information yet: relative weights only, never decide on it)
             or "residuals" (re-estimated from a fit).
         ctx: context columns for terms (temperature, time, specific force).
-        slews: the gyro increments between windows (:mod:`recal.detect.slews`); with both triads they
+        slews: the gyro increments between windows (:mod:`recal.detect.slew_data`); with both triads they
             add the "slew" invariant (2 residuals per slew, rad). None: no slews.
         slew_earth_rate: take Earth's rotation over each slew out with the calibrated rest rate
             of the first window (a gyro that sees Earth rate); False leaves it in the noise.
@@ -101,7 +101,7 @@ class Problem:
         closed_turns: slews taken as whole turns about the vertical (:class:`ClosedTurns`,
             found at the prior by :meth:`build`): the "closure" invariant, 1 residual each, rad.
         turn_candidates: every slew that integrates close to whole turns about the vertical,
-            with what was decided and why (:class:`recal.detect.slews.TurnCandidate`).
+            with what was decided and why (:class:`recal.detect.closed_turns.TurnCandidate`).
         slew_excess_rad: an unmodelled error per slew residual added in quadrature to its sigma
             (estimated from the slews' misfit by :func:`recal.solve.slew_fit.slew_excess`), rad.
         wander, wander_cov: the triads' bias wander between windows and the covariance it adds
@@ -158,7 +158,7 @@ class Problem:
         ``theta_ref`` (the prior) is used to propagate the window noise to the invariants and
         to estimate the specific force seen by a gyro g-sensitivity term. ``slews`` add the slew
         invariant when both triads are calibrated (they are ignored otherwise). Slews that are
-        closed turns at ``theta_ref`` (:func:`recal.detect.slews.turn_candidates`; none with a
+        closed turns at ``theta_ref`` (:func:`recal.detect.closed_turns.turn_candidates`; none with a
         commanded rotation) add the "closure" invariant, 1 residual each: checked by the two
         windows' Earth-rate headings (at ``theta_ref``, with the gyro's prior 1-sigma
         ``gyro_prior_sigma``: "gyro.bias" deg/h and "gyro.scale" in the scale's units, (3,)
@@ -464,7 +464,7 @@ class Problem:
         return {k: np.asarray(v)[self.slews.first] for k, v in self.ctx.items()}
 
     def _slew_values(self, theta: np.ndarray, x: dict[str, np.ndarray]) -> np.ndarray:
-        """Slew residuals (P, 2 S), rad (:func:`recal.detect.slews.slew_residuals`)."""
+        """Slew residuals (P, 2 S), rad (:func:`recal.detect.slew_gravity.slew_residuals`)."""
         assert self.slews is not None and self.slew_basis is not None
         gain, A, offset = self._gyro_parts(theta)
         f = x["accel"]  # (3, P, M)
@@ -491,7 +491,7 @@ class Problem:
     @cached_property
     def _zero_rate(self) -> np.ndarray | None:
         """A gyro blind to Earth rate: the output taken as zero rate over each slew, the mean of
-        its two windows (its bias wanders between windows; :func:`recal.detect.slews.slew_rotations`)."""
+        its two windows (its bias wanders between windows; :func:`recal.detect.slew_rotation.slew_rotations`)."""
         if self.slew_earth_rate or self.slews is None:
             return None
         g = self.positions.gyro
@@ -506,7 +506,7 @@ class Problem:
         return gain, A, offset
 
     def _rotation_values(self, theta: np.ndarray) -> np.ndarray:
-        """Known-rotation residuals (P, 3 K), rad (:func:`recal.detect.slews.rotation_residuals`)."""
+        """Known-rotation residuals (P, 3 K), rad (:func:`recal.detect.known_rotations.rotation_residuals`)."""
         assert self.slews is not None and self.known_rotations is not None
         gain, A, offset = self._gyro_parts(theta)
         return rotation_residuals(
@@ -515,7 +515,7 @@ class Problem:
         )  # fmt: skip
 
     def _closure_values(self, theta: np.ndarray) -> np.ndarray:
-        """Closed-turn residuals (P, C), rad (:func:`recal.detect.slews.closure_residuals`)."""
+        """Closed-turn residuals (P, C), rad (:func:`recal.detect.closed_turns.closure_residuals`)."""
         assert self.slews is not None and self.closed_turns is not None
         gain, A, offset = self._gyro_parts(theta)
         return closure_residuals(
@@ -742,7 +742,7 @@ class Problem:
     def _rotation_sigma(
         self, sd_in: dict[str, np.ndarray | None], gains: dict[str, np.ndarray]
     ) -> np.ndarray:
-        """Known-rotation noise (3 K,), rad (:func:`recal.detect.slews.rotation_sigma`)."""
+        """Known-rotation noise (3 K,), rad (:func:`recal.detect.known_rotations.rotation_sigma`)."""
         assert self.slews is not None and self.known_rotations is not None
         std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
         return rotation_sigma(

@@ -3,7 +3,7 @@ rate (a MEMS gyro) calibrated from them (its typical changes, :func:`blind_gyro_
 start, :func:`slew_prior`), whether Earth's turn over a slew is taken out
 (:func:`slews_see_earth_rate`), the slews' unmodelled error (:func:`slew_excess`), and what the
 still windows and the motion each tell about the gyro scale factors (:func:`information_shares`).
-The slews themselves are integrated in :mod:`recal.detect.slews`; :func:`recal.solve.calibrate`
+The slews themselves are integrated in :mod:`recal.detect.slew_collect`; :func:`recal.solve.calibrate`
 puts them in its set-up."""
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ def slews_see_earth_rate(positions: Positions, scale: np.ndarray | None, lat: fl
     first window than left in the slew's noise budget: the window-mean gyro noise (deg/h, at the
     prior scale ``scale`` output/(deg/h), else the output noise over the median output norm in
     units of Earth rate) against the horizontal Earth rate it would remove (variances per
-    component: sem^2 against (Omega cos(lat))^2 / 2, :func:`recal.detect.slews.slew_sigma`). Decided
+    component: sem^2 against (Omega cos(lat))^2 / 2, :func:`recal.detect.slew_gravity.slew_sigma`). Decided
     by the two error budgets, not by a contrast threshold; without noise columns the rest rate
     is used (a gyro without noise columns is judged on its residuals later)."""
     noise = positions.std_of_mean("gyro")

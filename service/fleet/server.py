@@ -65,7 +65,7 @@ def make_server(
 
 def serve(settings: ShoreSettings, log_level: str = "info", reanalysis: Path | None = None) -> int:
     """Serve until SIGINT or SIGTERM; the exit code. A database that cannot be used raises
-    :class:`service.db.StoreError`, a port that cannot be bound a one-line input error."""
+    :class:`service.store.errors.StoreError`, a port that cannot be bound a one-line input error."""
     from recal.errors import RecalInputError
 
     store = open_store(settings)

@@ -1,8 +1,8 @@
 """The shore's repository: units and their tokens, batches stored once, the fleet queries.
 
-Like the vessel's :class:`service.db.Store`, every public call opens its own short-lived
+Like the vessel's :class:`service.store.repository.Store`, every public call opens its own short-lived
 session in one transaction, so one :class:`FleetStore` is shared by the server's threads, and
-database failures surface as :class:`service.db.StoreError` with a one-line message.
+database failures surface as :class:`service.store.errors.StoreError` with a one-line message.
 
 Delivery is at least once, storage once (docs/fleet.md): a batch goes in one transaction, each
 row an insert that does nothing when its key (unit, vessel database instance, vessel row id) is
