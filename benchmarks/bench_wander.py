@@ -59,7 +59,7 @@ from recal.model.positions import Positions  # noqa: E402
 from recal.sim.simulate import NoiseSpec, simulate_positions  # noqa: E402
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions  # noqa: E402
-from recal.solve.wander import TriadWander, WanderModel, possible_wander  # noqa: E402
+from recal.solve.wander_model import TriadWander, WanderModel, possible_wander  # noqa: E402
 
 TRUTH = CoefficientSet.seed_truth()
 WINDOW_S = 600.0

@@ -69,8 +69,8 @@ _API = {
     "calibrate": "recal.solve.calibrate",
     "CalibrationOptions": "recal.solve.options",
     "CalibrationResult": "recal.solve.result",
-    "WanderModel": "recal.solve.wander",
-    "TriadWander": "recal.solve.wander",
+    "WanderModel": "recal.solve.wander_model",
+    "TriadWander": "recal.solve.wander_model",
     # checking a calibration
     "diagnose": "recal.diagnose.effects",
     "drift_inputs": "recal.diagnose.drift",

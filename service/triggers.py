@@ -209,7 +209,7 @@ def _drift(
     from recal.diagnose.drift import DriftConfig, drift_inputs, drift_test
 
     s = settings.scheduler
-    from recal.solve.wander import possible_wander
+    from recal.solve.wander_model import possible_wander
 
     # the accepted version's bias wander (and the bound of what its windows could not show), so
     # that wander between windows is not read as a step

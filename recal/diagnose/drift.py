@@ -170,8 +170,8 @@ def drift_inputs(
     ``coefficients.uncertainty`` as a diagonal (unknown sigma: 0, with a note).
 
     ``wander``: the accepted version's bias wander between windows
-    (:class:`recal.solve.wander.WanderModel`, or its JSON block). The windows are then taken
-    as a Kalman filter's innovations under it (:func:`recal.solve.wander.innovations`), which
+    (:class:`recal.solve.wander_model.WanderModel`, or its JSON block). The windows are then taken
+    as a Kalman filter's innovations under it (:func:`recal.solve.wander_covariance.innovations`), which
     are independent as the GLR needs: wander no longer accumulates into a false step."""
     from recal.solve.problem import Problem
 
@@ -204,11 +204,12 @@ def drift_inputs(
     both = active[:, :, None] & active[:, None, :]
     noise = np.where(both, noise, np.eye(3))
     cov = coefficient_covariance(coefficients, layout, covariance, notes)
-    from recal.solve.wander import window_times
+    from recal.solve.wander_model import window_times
 
     time_s = window_times(positions.columns, M)
     if wander is not None:
-        from recal.solve.wander import WanderModel, innovations, window_sessions
+        from recal.solve.wander_covariance import innovations
+        from recal.solve.wander_model import WanderModel, window_sessions
 
         model = wander if isinstance(wander, WanderModel) else WanderModel.from_json_dict(wander)
         if not model.empty:

@@ -5,7 +5,7 @@ with the windows taken as independent. Its window residuals are then asked wheth
 bias wander (:mod:`recal.solve.wander`), by the same restricted likelihood (REML) the wander fit
 uses: the coefficients are re-fitted, linearised, under each candidate covariance, so a wander
 that looks like a coefficient is not counted twice. Per triad the correlation time is chosen
-among 0 and the times the windows' spacing can show (:func:`recal.solve.wander.tau_floor_s`):
+among 0 and the times the windows' spacing can show (:func:`recal.solve.wander_estimate.tau_floor_s`):
 
 * tau at or above the floor: a **wander**, a bias the windows share the more, the closer they are;
 * tau 0: **excess** scatter, independent on each window. Neighbouring windows do not share it,
@@ -38,20 +38,17 @@ import numpy as np
 
 from recal.diagnose.fit import Fit
 from recal.diagnose.noise_test import orthonormal_span
-from recal.solve.wander import (
+from recal.solve.wander_chain import WanderSensitivity
+from recal.solve.wander_covariance import Whitening
+from recal.solve.wander_estimate import (
     WANDER_SIGNIFICANCE,
-    TriadWander,
-    WanderModel,
-    WanderSensitivity,
-    Whitening,
     correlation_times,
     estimate_wander,
     tau_floor_s,
-    wander_gain,
-    window_sessions,
-    window_times,
 )
 from recal.solve.wander_fit import WANDER_MIN_SPAN_S
+from recal.solve.wander_likelihood import wander_gain
+from recal.solve.wander_model import TriadWander, WanderModel, window_sessions, window_times
 
 #: Names of the noise hypotheses, as the JSON gives them.
 WHITE, NOISE = "independent", "noise"

@@ -41,13 +41,9 @@ import numpy as np
 from scipy import stats
 from scipy.linalg import solve_triangular
 
-from recal.solve.wander import (
-    TriadWander,
-    WanderModel,
-    WanderSensitivity,
-    as_sensitivity,
-    wander_covariance,
-)
+from recal.solve.wander_chain import WanderSensitivity, as_sensitivity
+from recal.solve.wander_covariance import wander_covariance
+from recal.solve.wander_model import TriadWander, WanderModel
 
 #: Parametric-bootstrap draws of the null (family-wise p resolution 1 / (draws + 1)).
 NOISE_NULL_DRAWS = 400

@@ -41,14 +41,9 @@ from recal.model.error_model import Model, ParameterLayout
 from recal.model.positions import GYRO_STD_COLUMNS, Positions
 from recal.model.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 from recal.model.terms import Term
-from recal.solve.wander import (
-    WanderCovariance,
-    WanderModel,
-    WanderSensitivity,
-    Whitening,
-    window_sessions,
-    window_times,
-)
+from recal.solve.wander_chain import WanderSensitivity
+from recal.solve.wander_covariance import WanderCovariance, Whitening
+from recal.solve.wander_model import WanderModel, window_sessions, window_times
 
 #: Residual sigma used before any noise information exists (positions without *_std or *_sem
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
@@ -126,7 +121,7 @@ class Problem:
     slew_excess_rad: float = 0.0
     #: bias wander between windows (:mod:`recal.solve.wander`) and the covariance it adds to the
     #: window invariants' residuals (gyro norm, accel norm, dot: the first Rw of
-    #: :meth:`residuals`) in state-space form (a :class:`recal.solve.wander.WanderCovariance`:
+    #: :meth:`residuals`) in state-space form (a :class:`recal.solve.wander_covariance.WanderCovariance`:
     #: the model and the residuals' sensitivity, never a dense Rw x Rw matrix), set by
     #: :meth:`with_wander`; None: windows independent
     wander: WanderModel | None = None
@@ -554,7 +549,7 @@ class Problem:
     @cached_property
     def _whitener(self) -> Whitening | None:
         """The window residuals' whitening for their current sigma (shared by copies of this
-        problem with other fields changed: :class:`recal.solve.wander.WanderCovariance`)."""
+        problem with other fields changed: :class:`recal.solve.wander_covariance.WanderCovariance`)."""
         if self.wander_cov is None:
             return None
         return self.wander_cov.whitening(self.window_sigma())

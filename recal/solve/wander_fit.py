@@ -15,16 +15,9 @@ from recal.solve.lm import solve_lm
 from recal.solve.observability import ObservabilityReport, jacobian
 from recal.solve.options import CalibrationOptions
 from recal.solve.problem import Problem
-from recal.solve.wander import WANDER_SIGNIFICANCE as WANDER_TEST
-from recal.solve.wander import (
-    TriadWander,
-    WanderFit,
-    WanderModel,
-    correlation_times,
-    estimate_wander,
-    window_sessions,
-    window_times,
-)
+from recal.solve.wander_estimate import WANDER_SIGNIFICANCE as WANDER_TEST
+from recal.solve.wander_estimate import WanderFit, correlation_times, estimate_wander
+from recal.solve.wander_model import TriadWander, WanderModel, window_sessions, window_times
 
 #: "auto" looks for bias wander only where the windows span at least this long, s: over a
 #: session of minutes an excess misfit is model error (a warming MEMS drifts, a hand-turned

@@ -133,7 +133,7 @@ def wander_option(value: str | None):
     from pathlib import Path
 
     from recal.errors import RecalInputError
-    from recal.solve.wander import WanderModel
+    from recal.solve.wander_model import WanderModel
 
     if value in (None, "none"):
         return None

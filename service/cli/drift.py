@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if args.latitude is None:
         print("recal: --latitude not given, assuming 45 deg (gravity and the dot product "
               "depend on it)", file=sys.stderr)  # fmt: skip
-    from recal.solve.wander import possible_wander
+    from recal.solve.wander_model import possible_wander
 
     coefficients, covariance, noise_model = _load(args.coefficients)
     positions = load_positions(args.positions)

@@ -14,7 +14,7 @@ from recal.diagnose.effects import diagnose
 from recal.model.coefficients import read_coefficients
 from recal.model.positions import Positions
 from recal.solve.options import CalibrationOptions
-from recal.solve.wander import correlation_times, tau_floor_s
+from recal.solve.wander_estimate import correlation_times, tau_floor_s
 
 
 def test_the_floor_on_tau_is_the_median_spacing_of_one_session():

@@ -14,21 +14,18 @@ from recal.sim.simulate import NoiseSpec, simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.observability import jacobian
 from recal.solve.options import CalibrationOptions
-from recal.solve.wander import (
+from recal.solve.wander_chain import WanderSensitivity
+from recal.solve.wander_covariance import Whitening, wander_covariance
+from recal.solve.wander_estimate import (
     SIGMA_CARRIED_DELTA,
     SIGMA_UPPER_DELTA,
     TAU_CONSERVATIVE,
     WANDER_SIGNIFICANCE,
-    TriadWander,
-    WanderModel,
-    WanderSensitivity,
-    Whitening,
     correlation_times,
     estimate_wander,
-    wander_covariance,
-    wander_gain,
-    window_times,
 )
+from recal.solve.wander_likelihood import wander_gain
+from recal.solve.wander_model import TriadWander, WanderModel, window_times
 
 TRUTH = CoefficientSet.seed_truth()
 
@@ -110,14 +107,15 @@ def test_the_kalman_whitening_is_the_dense_one(name: str) -> None:
 def test_the_banded_restricted_likelihood_is_the_dense_one() -> None:
     """The banded precision's -log L (the estimate's) and the innovations' (wander_gain's)
     against the dense formula: 1e-8 relative, with and without the Jacobian."""
-    from recal.solve.wander import _chain, _directions, _Restricted
+    from recal.solve.wander_chain import window_chain
+    from recal.solve.wander_likelihood import RestrictedLikelihood, reml_directions
 
     sens, t, sessions, sigma, rng = _random_problem(2)
     r = rng.normal(size=sens.n_residuals)
     J = rng.normal(size=(sens.n_residuals, 7))
     for jac in (None, J):
-        Jd = _directions(jac)
-        ev = _Restricted(r, sigma, sens, _chain(sens, t, sessions), Jd)
+        Jd = reml_directions(jac)
+        ev = RestrictedLikelihood(r, sigma, sens, window_chain(sens, t, sessions), Jd)
         base = _dense_nll(r, Jd, np.eye(len(r)))
         for name in ("both, finite", "gyro only", "none"):
             dense = _dense_nll(r, Jd, _dense_C(sens, t, sessions, sigma, MODELS[name]))
@@ -127,13 +125,13 @@ def test_the_banded_restricted_likelihood_is_the_dense_one() -> None:
             gain = wander_gain(r, sigma, sens, t, MODELS[name], jacobian=jac, sessions=sessions)
             assert gain == pytest.approx(2.0 * (base - dense), rel=1e-8, abs=1e-9)
     # a batch of candidates is the candidates one by one
-    ev = _Restricted(r, sigma, sens, _chain(sens, t, sessions), _directions(J))
+    ev = RestrictedLikelihood(r, sigma, sens, window_chain(sens, t, sessions), reml_directions(J))
     fixed = {"accel": MODELS["both, finite"].triads["accel"]}
     sig, tau = np.array([0.3, 1.0, 3.0, 1.0]), np.array([900.0, 3600.0, 0.0, 5e4])
     batch = ev.candidates(fixed, "gyro", sig, tau)
     for k in range(4):
         model = WanderModel({**fixed, "gyro": TriadWander(np.full(3, sig[k]), np.full(3, tau[k]))})
-        dense = _dense_nll(r, _directions(J), _dense_C(sens, t, sessions, sigma, model))
+        dense = _dense_nll(r, reml_directions(J), _dense_C(sens, t, sessions, sigma, model))
         assert batch[k] == pytest.approx(dense, rel=1e-8)
 
 
@@ -182,9 +180,9 @@ def _dense_estimate(r, sigma, sens, t, taus, J, sessions):
     the longest tau within TAU_CONSERVATIVE, bounds by bisection, two rounds, the joint test."""
     from scipy.stats import chi2
 
-    from recal.solve.wander import _directions
+    from recal.solve.wander_likelihood import reml_directions
 
-    Jd = _directions(J)
+    Jd = reml_directions(J)
 
     def nll(model: dict) -> float:
         return _dense_nll(r, Jd, _dense_C(sens, t, sessions, sigma, WanderModel(model)))
@@ -287,7 +285,8 @@ def test_the_carried_tau_is_the_band_edge_between_grid_points() -> None:
     """refine_tau: the carried tau is the longest whose profile (sigma re-fitted, dense) stays
     within TAU_CONSERVATIVE of the best, found between the picked grid point and the next one
     (one triad: one round)."""
-    from recal.solve.wander import _LOG_TAU_TOL, _directions
+    from recal.solve.wander_estimate import _LOG_TAU_TOL
+    from recal.solve.wander_likelihood import reml_directions
 
     pos = _session(12, 60, 1.0, 0.0, 3600.0)
     res = calibrate(pos, CalibrationOptions(latitude_deg=45.0, method="lm"))
@@ -303,7 +302,7 @@ def test_the_carried_tau_is_the_band_edge_between_grid_points() -> None:
     sens = WanderSensitivity(full.window, {"gyro": full.rows["gyro"]}, full.n_windows)
     (grid,) = estimate_wander(r, sigma, sens, t, taus=taus, jacobian=J, refine_tau=False)[1]
     (fit,) = estimate_wander(r, sigma, sens, t, taus=taus, jacobian=J)[1]
-    Jd = _directions(J)
+    Jd = reml_directions(J)
 
     def profile(tau: float) -> float:  # dense: sigma by golden section
         def f(sg: float) -> float:
