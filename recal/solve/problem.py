@@ -13,6 +13,12 @@ At rest every position must satisfy (docs/reference.md#rest)
 parameter vectors, shape (P, D) -> (P, R), in one numpy call. LM uses P = 1, a swarm uses
 P = fish x Monte Carlo runs. :meth:`Problem.indicator` is seed 000 eq. (14) (and its accelerometer
 twin, seed 002 eq. 18): the RMS over positions of |x_hat|^2 - ref^2 with M - 1 in the denominator.
+
+The problem's parts live beside it, each a base of :class:`Problem` (issue 38): the slews, known
+rotations and closed turns (:mod:`recal.solve.problem_motion`), the bias wander's whitening of
+the window residuals (:mod:`recal.solve.problem_wander`) and the swarm objective with eq. (14)'s
+indicator (:mod:`recal.solve.problem_objective`); this module holds the problem's fields, its
+construction, the invariants' structure and evaluation, and the noise propagated to them.
 """
 
 from __future__ import annotations
@@ -25,25 +31,28 @@ import numpy as np
 
 from recal.detect.closed_turns import (
     ClosedTurns,
-    HeadingCheck,
     TurnCandidate,
     closed_turns_of,
-    closure_residuals,
     closure_sigma,
     turn_candidates,
 )
-from recal.detect.known_rotations import KnownRotations, rotation_residuals, rotation_sigma
+from recal.detect.known_rotations import KnownRotations
 from recal.detect.slew_data import Slews
-from recal.detect.slew_gravity import horizontal_basis, slew_residuals, slew_sigma
+from recal.detect.slew_gravity import horizontal_basis
 from recal.detect.slew_rotation import integrated_rotvec
 from recal.errors import RecalInputError
 from recal.model.error_model import Model, ParameterLayout
 from recal.model.positions import GYRO_STD_COLUMNS, Positions
 from recal.model.reference import OMEGA_IE_DEG_H, dot_reference, normal_gravity_g
 from recal.model.terms import Term
-from recal.solve.wander_chain import WanderSensitivity
-from recal.solve.wander_covariance import WanderCovariance, Whitening
-from recal.solve.wander_model import WanderModel, window_sessions, window_times
+from recal.solve.problem_motion import MotionInvariants
+from recal.solve.problem_objective import (
+    LINEAR_INVARIANTS,  # noqa: F401 - recal.problem's name
+    ProblemObjective,
+)
+from recal.solve.problem_wander import WanderWhitening
+from recal.solve.wander_covariance import WanderCovariance
+from recal.solve.wander_model import WanderModel
 
 #: Residual sigma used before any noise information exists (positions without *_std or *_sem
 #: columns): it only sets the relative weight of the invariants for the first fit and is then
@@ -67,12 +76,10 @@ INVARIANT_SENSORS = {
 }
 #: Invariants that need a still gyro: rows of accelerometer-only windows are left out of them.
 GYRO_STATIC = frozenset({"gyro_norm", "dot"})
-#: Invariants whose residual is linear in the estimated inputs (no squared form in eq. 14).
-LINEAR_INVARIANTS = frozenset({"dot", "slew", "rotation", "closure"})
 
 
 @dataclass(frozen=True)
-class Problem:
+class Problem(MotionInvariants, WanderWhitening, ProblemObjective):
     """Static-position calibration problem for one or both triads.
 
     Attributes:
@@ -225,21 +232,6 @@ class Problem:
             prob = replace(prob, closed_turns=closed_turns_of(found, f[slews.first]),
                            turn_candidates=tuple(found), slew_excess_rad=float(slew_excess_rad))  # fmt: skip
         return prob.with_sigma(*prob.propagated_sigma(theta))
-
-    def _heading_check(
-        self, theta: np.ndarray, force: np.ndarray, prior_sigma: Mapping[str, np.ndarray] | None
-    ) -> HeadingCheck:
-        """What the Earth-rate heading check of the closed turns needs, at ``theta``."""
-        sl = self.layout.term_slices()
-        rate = self.physical(theta[None])["gyro"][0]
-        scale = np.maximum(np.abs(theta[sl["gyro.scale"]]), 1e-300)
-        sem = self.positions.std_of_mean("gyro")
-        sigma = dict(prior_sigma or {})
-        typical = self.layout.typical(theta)
-        bias = np.asarray(sigma.get("gyro.bias", typical[sl["gyro.bias"]]), float)
-        rel = np.asarray(sigma.get("gyro.scale", typical[sl["gyro.scale"]]), float) / scale
-        return HeadingCheck(rate, force, None if sem is None else sem / scale,
-                            self.latitude_deg, bias, rel, self.slew_earth_rate)  # fmt: skip
 
     def _specific_force(self, theta: np.ndarray) -> np.ndarray:
         if "accel" in self.sensors:
@@ -452,71 +444,6 @@ class Problem:
             out["accel"] = np.where(free[:, None], -vv / (h * fn) * vh, 0.0)
         return out
 
-    @cached_property
-    def _slew_ctx(self) -> dict[str, np.ndarray]:
-        """The context of each slew's first window (temperature, time, specific force)."""
-        assert self.slews is not None
-        return {k: np.asarray(v)[self.slews.first] for k, v in self.ctx.items()}
-
-    def _slew_values(self, theta: np.ndarray, x: dict[str, np.ndarray]) -> np.ndarray:
-        """Slew residuals (P, 2 S), rad (:func:`recal.detect.slew_gravity.slew_residuals`)."""
-        assert self.slews is not None and self.slew_basis is not None
-        gain, A, offset = self._gyro_parts(theta)
-        f = x["accel"]  # (3, P, M)
-        f1 = np.moveaxis(f[:, :, self.slews.first], 0, -1)
-        f2 = np.moveaxis(f[:, :, self.slews.second], 0, -1)
-        return slew_residuals(
-            self.slews, gain, A, offset, f1, f2, self.slew_basis, self.slew_earth_rate,
-            self._zero_rate, self._same_gyro(theta),
-        )  # fmt: skip
-
-    def _same_gyro(self, theta: np.ndarray) -> np.ndarray | None:
-        """For each row of theta (P, D), the first row with the same gyro parameters, or None
-        when all differ: the slews are integrated once per distinct gyro (a Jacobian along the
-        accelerometer's coefficients, a swarm's accelerometer phase, needs no integration)."""
-        theta = np.atleast_2d(theta)
-        if theta.shape[0] < 2:
-            return None
-        g = np.ascontiguousarray(theta[:, self._slices["gyro"]])
-        _, first, inverse = np.unique(g, axis=0, return_index=True, return_inverse=True)
-        if first.size == theta.shape[0]:
-            return None
-        return first[inverse.reshape(-1)]
-
-    @cached_property
-    def _zero_rate(self) -> np.ndarray | None:
-        """A gyro blind to Earth rate: the output taken as zero rate over each slew, the mean of
-        its two windows (its bias wanders between windows; :func:`recal.detect.slew_rotation.slew_rotations`)."""
-        if self.slew_earth_rate or self.slews is None:
-            return None
-        g = self.positions.gyro
-        return 0.5 * (g[self.slews.first] + g[self.slews.second])
-
-    def _gyro_parts(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The gyro model's gain, matrix and offset in the context of each slew's first window."""
-        theta = np.atleast_2d(theta)
-        gain, A, offset, _ = self.model("gyro")._parts(
-            theta[:, self._slices["gyro"]], self._slew_ctx
-        )
-        return gain, A, offset
-
-    def _rotation_values(self, theta: np.ndarray) -> np.ndarray:
-        """Known-rotation residuals (P, 3 K), rad (:func:`recal.detect.known_rotations.rotation_residuals`)."""
-        assert self.slews is not None and self.known_rotations is not None
-        gain, A, offset = self._gyro_parts(theta)
-        return rotation_residuals(
-            self.slews, self.known_rotations, gain, A, offset, self.slew_earth_rate,
-            self._zero_rate,
-        )  # fmt: skip
-
-    def _closure_values(self, theta: np.ndarray) -> np.ndarray:
-        """Closed-turn residuals (P, C), rad (:func:`recal.detect.closed_turns.closure_residuals`)."""
-        assert self.slews is not None and self.closed_turns is not None
-        gain, A, offset = self._gyro_parts(theta)
-        return closure_residuals(
-            self.slews, self.closed_turns, gain, A, offset, self.slew_earth_rate, self._zero_rate
-        )
-
     def raw_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Invariant name -> (P, M) raw residual: |x| - ref, or w.f - ref (input units); the
         slew invariant (P, 2 S), rad."""
@@ -536,136 +463,6 @@ class Problem:
             return np.concatenate(parts, axis=1)
         k = len(self.window_invariants)
         return np.concatenate([W.apply(np.concatenate(parts[:k], axis=1)), *parts[k:]], axis=1)
-
-    @property
-    def window_invariants(self) -> tuple[str, ...]:
-        """The invariants with one residual per window (gyro norm, accel norm, dot product)."""
-        return tuple(n for n in self.invariant_names if n in ("gyro_norm", "accel_norm", "dot"))
-
-    def window_sigma(self) -> np.ndarray:
-        """(Rw,) the window residuals' own 1-sigma, in the order of :meth:`residuals`."""
-        return np.concatenate([self.sigma[n] for n in self.window_invariants])
-
-    @cached_property
-    def _whitener(self) -> Whitening | None:
-        """The window residuals' whitening for their current sigma (shared by copies of this
-        problem with other fields changed: :class:`recal.solve.wander_covariance.WanderCovariance`)."""
-        if self.wander_cov is None:
-            return None
-        return self.wander_cov.whitening(self.window_sigma())
-
-    def wander_sensitivity(self, theta: np.ndarray) -> WanderSensitivity:
-        """d (window residual) / d (output of its window's axes) at ``theta``: per residual, in
-        the order of :meth:`residuals`' window part, its window and per triad a 3-vector (input
-        units per output unit; zeros where the residual does not involve the triad)."""
-        x = {k: v[0] for k, v in self.physical(np.atleast_2d(theta)).items()}
-        gains = self._output_gains(np.asarray(theta, float), x)
-        windows: list[np.ndarray] = []
-        blocks: dict[str, list[np.ndarray]] = {s: [] for s in self.sensors}
-        for n in self.window_invariants:
-            rows = self.rows_of(n)
-            windows.append(rows)
-            grads = self.norm_gradients(n, x) if n.endswith("_norm") else {}
-            for s in self.sensors:
-                d = np.zeros((len(rows), 3))
-                if s in grads:
-                    d = grads[s][rows]
-                elif n == "dot":
-                    d = x["accel" if s == "gyro" else "gyro"][rows]
-                blocks[s].append(d / gains[s][rows])
-        if not windows:
-            return WanderSensitivity(
-                np.zeros(0, int), {s: np.zeros((0, 3)) for s in blocks}, self.M
-            )
-        return WanderSensitivity(
-            np.concatenate(windows), {s: np.concatenate(b) for s, b in blocks.items()}, self.M
-        )
-
-    def with_wander(self, model: WanderModel | None, theta: np.ndarray) -> Problem:
-        """The problem with ``model``'s bias wander between windows (at ``theta``'s gains);
-        None or an empty model: windows independent again."""
-        if model is None or model.empty or not self.window_invariants:
-            return replace(self, wander=None, wander_cov=None)
-        t = window_times(self.positions.columns, self.M)
-        sessions = window_sessions(self.positions.columns, self.M)
-        cov = WanderCovariance(model, self.wander_sensitivity(theta), t, sessions)
-        return replace(self, wander=model, wander_cov=cov)
-
-    def squared_residuals(self, theta: np.ndarray) -> dict[str, np.ndarray]:
-        """Seed eq. (13): |x_hat|^2 - ref^2 per position (P, M); the dot product stays linear."""
-        vals = self._invariant_values(theta, squared=True)
-        return {
-            n: v - (self.reference(n) if n in LINEAR_INVARIANTS else self.reference(n) ** 2)
-            for n, v in vals.items()
-        }
-
-    def indicator(self, theta: np.ndarray) -> dict[str, np.ndarray]:
-        """Seed 000 eq. (14) per invariant: sqrt(sum((|x|^2 - ref^2)^2) / (M - 1)), shape (P,)."""
-        return {
-            n: np.sqrt(np.sum(r * r, axis=1) / max(self.n_of(n) - 1, 1))
-            for n, r in self.squared_residuals(theta).items()
-        }
-
-    @cached_property
-    def _floor(self) -> dict[str, float]:
-        return self.indicator_floor()
-
-    def indicator_floor(self) -> dict[str, float]:
-        """Expected eq. (14) value from window noise alone, per invariant."""
-        out = {}
-        for n, s in self.sigma.items():
-            scale = 1.0 if n in LINEAR_INVARIANTS else 2.0 * self.reference(n)
-            out[n] = float(np.sqrt(np.mean((scale * s) ** 2)))
-        return out
-
-    @property
-    def objective_dof(self) -> int:
-        """chi^2 = :meth:`objective` x this, near the minimum: R - 1 for the least squares; for
-        eq. (14) (one noise floor per invariant) about M - 1."""
-        return max((self.M if self.paper_objective else self.n_residuals) - 1, 1)
-
-    def objective(
-        self, theta: np.ndarray, offsets: Mapping[str, np.ndarray] | None = None
-    ) -> np.ndarray:
-        """The swarm objective (P,).
-
-        Default: the least squares LM minimises, sum of squared :meth:`residuals` over (R - 1)
-        (~chi2_red), so a swarm and LM share their minimum. With ``paper_objective``: the sum
-        over invariants of (eq. 14 indicator / its noise floor)^2 -- with one triad eq. (14)
-        squared up to a constant, with both it weighs the invariants by their noise, but each
-        invariant by one floor, so with slews its minimum is not the least-squares one.
-
-        ``offsets``: invariant -> (P, n) perturbation of the data of each row
-        (:func:`recal.solve.surrogate.data_noise`'s form: sigma eps for a linear invariant, 2 ref
-        sigma eps for a norm); the least squares adds the eps to the whitened residuals.
-        """
-        if not self.paper_objective:
-            r = self.residuals(theta)
-            if offsets is not None:
-                r = r + self.whitened_offsets(offsets)
-            total = np.einsum("pr,pr->p", r, r) / max(self.n_residuals - 1, 1)
-            return np.where(np.isfinite(total), total, np.inf)
-        floor = self._floor
-        if offsets is None:
-            ind = self.indicator(theta)
-            total = sum((ind[n] / floor[n]) ** 2 for n in self.invariant_names)
-            return np.where(np.isfinite(total), total, np.inf)
-        total = 0.0
-        for n, sq in self.squared_residuals(theta).items():
-            sq = sq + offsets[n]
-            total = total + np.einsum("pm,pm->p", sq, sq) / (
-                max(self.n_of(n) - 1, 1) * floor[n] ** 2
-            )
-        return np.where(np.isfinite(total), total, np.inf)
-
-    def whitened_offsets(self, offsets: Mapping[str, np.ndarray]) -> np.ndarray:
-        """(P, R) the eps of data perturbations in :func:`recal.solve.surrogate.data_noise`'s form,
-        in the order of :meth:`residuals` (each N(0, 1) whitened residual's offset)."""
-        parts = []
-        for n in self.invariant_names:
-            scale = 1.0 if n in LINEAR_INVARIANTS else 2.0 * self.reference(n)
-            parts.append(offsets[n] / (scale * self.sigma[n]))
-        return np.concatenate(parts, axis=1)
 
     # ---- noise --------------------------------------------------------------------------
     def propagated_sigma(self, theta: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, str]]:
@@ -733,36 +530,6 @@ class Problem:
             ) / step
             gains[m.sensor] = np.maximum(np.abs(gain), 1e-300)
         return gains
-
-    def _rotation_sigma(
-        self, sd_in: dict[str, np.ndarray | None], gains: dict[str, np.ndarray]
-    ) -> np.ndarray:
-        """Known-rotation noise (3 K,), rad (:func:`recal.detect.known_rotations.rotation_sigma`)."""
-        assert self.slews is not None and self.known_rotations is not None
-        std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
-        return rotation_sigma(
-            self.slews, self.known_rotations, std_in, sd_in["gyro"], self.slew_earth_rate
-        )
-
-    def _slew_sigma(
-        self,
-        x: dict[str, np.ndarray],
-        sd_in: dict[str, np.ndarray | None],
-        gains: dict[str, np.ndarray],
-    ) -> np.ndarray | None:
-        """Slew noise (2 S,), rad, from the windows' gyro std and sem and accel sem."""
-        assert self.slews is not None and self.slew_basis is not None
-        if sd_in["gyro"] is None or sd_in["accel"] is None:
-            return None
-        if not all(c in self.positions.columns for c in GYRO_STD_COLUMNS):
-            return None
-        # per-sample gyro std to input units through the local gain, like the window noise
-        std_in = self.positions.stack(GYRO_STD_COLUMNS) / gains["gyro"]
-        i, j = self.slews.first, self.slews.second
-        return slew_sigma(
-            self.slews, std_in, sd_in["gyro"], sd_in["accel"], x["accel"][i], x["accel"][j],
-            self.slew_basis, self.slew_earth_rate, self.latitude_deg, self.slew_excess_rad,
-        )  # fmt: skip
 
     def at(self, theta: np.ndarray) -> Problem:
         """The problem re-referenced at ``theta`` (an estimate rather than the prior): the window

@@ -28,7 +28,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from recal.solve.problem import LINEAR_INVARIANTS, Problem
+from recal.solve.problem import Problem
+from recal.solve.problem_objective import LINEAR_INVARIANTS
 
 #: Invariants that integrate the gyro over the slews (expensive, linearised here).
 MOTION_INVARIANTS = ("slew", "rotation", "closure")

@@ -177,3 +177,22 @@ def test_hidden_effect_raises_chi2_and_adding_it_lowers_the_error():
     assert plain.chi2_red > 3 * full.chi2_red
     assert full.chi2_red < 2.0
     assert Model.seed("gyro").size + 3 == full.layout.size
+
+
+def test_the_problem_is_split_by_idea_and_its_names_stay() -> None:
+    """Issue 38: the problem's motion invariants, wander whitening and objective are bases of
+    :class:`Problem` in modules of their own, each under 600 lines like problem.py itself;
+    ``recal.solve.problem`` (the 0.1.0 ``recal.problem``) still gives LINEAR_INVARIANTS."""
+    import importlib
+    from pathlib import Path
+
+    import recal.solve.problem as problem
+    from recal.solve.problem_motion import MotionInvariants
+    from recal.solve.problem_objective import LINEAR_INVARIANTS, ProblemObjective
+    from recal.solve.problem_wander import WanderWhitening
+
+    assert problem.Problem.__mro__[1:4] == (MotionInvariants, WanderWhitening, ProblemObjective)
+    assert problem.LINEAR_INVARIANTS is LINEAR_INVARIANTS
+    for part in ("problem", "problem_motion", "problem_wander", "problem_objective"):
+        module = importlib.import_module(f"recal.solve.{part}")
+        assert len(Path(module.__file__).read_text().splitlines()) < 600, part
