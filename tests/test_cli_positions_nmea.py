@@ -16,7 +16,7 @@ from drivers.nmea import circular_mean_deg
 from recal.detect.underway import DEFAULT_MAX_SOG_KN
 from recal.sim.vessel import VesselSpec, ship_track
 from service.cli import ship as ship_cli
-from service.cli import simulate as sim_cli
+from service.cli import simulate_args
 from service.cli.main import main
 from service.config import NavSettings
 
@@ -67,7 +67,7 @@ def _positions(d: Path, out: Path, *extra: str) -> int:
 def test_defaults_repeated_for_the_parsers_match() -> None:
     assert ship_cli.MAX_SOG_KN == DEFAULT_MAX_SOG_KN == NavSettings().max_sog_kn
     berth = inspect.signature(VesselSpec.berth).parameters
-    assert sim_cli.VESSEL_TRANSIT_KN == berth["transit_kn"].default
+    assert simulate_args.VESSEL_TRANSIT_KN == berth["transit_kn"].default
 
 
 @pytest.mark.slow

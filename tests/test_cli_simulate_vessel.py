@@ -17,7 +17,7 @@ from recal.detect.hull import detect_hull
 from recal.detect.rest import RestReference
 from recal.sim.vessel import SeaState, VesselSpec
 from service.capture_sim import CAPTURE_FORMATS
-from service.cli import simulate as sim_cli
+from service.cli import simulate_args, simulate_writers
 from service.cli.main import build_parser, main
 
 RATE = 20.0
@@ -31,22 +31,22 @@ def _schedule(path: Path) -> list[dict[str, str]]:
 
 def test_vessel_defaults_repeated_for_the_parser_match_the_simulator() -> None:
     berth = inspect.signature(VesselSpec.berth).parameters
-    assert sim_cli.VESSEL_HOLDS == berth["holds"].default
-    assert sim_cli.VESSEL_HOLD_S == berth["hold_s"].default
-    assert sim_cli.VESSEL_TURN_DEG == berth["turn_deg"].default
-    assert sim_cli.VESSEL_TURN_S == berth["turn_s"].default
+    assert simulate_args.VESSEL_HOLDS == berth["holds"].default
+    assert simulate_args.VESSEL_HOLD_S == berth["hold_s"].default
+    assert simulate_args.VESSEL_TURN_DEG == berth["turn_deg"].default
+    assert simulate_args.VESSEL_TURN_S == berth["turn_s"].default
     assert (
-        sim_cli.VESSEL_INDEX_S
+        simulate_args.VESSEL_INDEX_S
         == inspect.signature(VesselSpec.indexing).parameters["index_s"].default
     )
     sea = SeaState()
-    assert sim_cli.VESSEL_ROLL_DEG == sea.roll_deg
-    assert sim_cli.VESSEL_ROLL_PERIOD_S == sea.roll_period_s
-    assert sim_cli.VESSEL_PITCH_PERIOD_S == sea.pitch_period_s
-    assert sim_cli.VESSEL_YAW_SWING_DEG == sea.yaw_swing_deg
-    assert sim_cli.VESSEL_YAW_PERIOD_S == sea.yaw_period_s
-    assert sim_cli.VESSEL_HEAVE_PERIOD_S == sea.heave_period_s
-    assert sim_cli.VESSEL_ROLL_DEG / 2 == sea.pitch_deg  # --pitch defaults to half the roll
+    assert simulate_args.VESSEL_ROLL_DEG == sea.roll_deg
+    assert simulate_args.VESSEL_ROLL_PERIOD_S == sea.roll_period_s
+    assert simulate_args.VESSEL_PITCH_PERIOD_S == sea.pitch_period_s
+    assert simulate_args.VESSEL_YAW_SWING_DEG == sea.yaw_swing_deg
+    assert simulate_args.VESSEL_YAW_PERIOD_S == sea.yaw_period_s
+    assert simulate_args.VESSEL_HEAVE_PERIOD_S == sea.heave_period_s
+    assert simulate_args.VESSEL_ROLL_DEG / 2 == sea.pitch_deg  # --pitch defaults to half the roll
 
 
 def test_capture_formats_come_from_the_registry() -> None:
@@ -82,7 +82,7 @@ def test_berth_writes_a_csv_recording_a_capture_the_truth_and_the_schedule(
     n = round(duration * RATE)
     # the recording: docs/reference.md#csv, time from 0 at the rate, deg/h and g
     data = np.loadtxt(rec, delimiter=",", skiprows=1)
-    assert rec.read_text().splitlines()[0] == ",".join(sim_cli.RECORDING_COLUMNS)
+    assert rec.read_text().splitlines()[0] == ",".join(simulate_writers.RECORDING_COLUMNS)
     assert data.shape == (n, 8)
     np.testing.assert_allclose(data[:, 0], np.arange(n) / RATE)
     accel_norm = np.linalg.norm(data[:, 4:7], axis=1)
@@ -93,7 +93,7 @@ def test_berth_writes_a_csv_recording_a_capture_the_truth_and_the_schedule(
     assert float(sched[-1]["end_s"]) == duration and float(sched[-1]["heading_end_deg"]) == 60
     # the capture: the same samples as KVH Format A frames, sequence numbers running on across
     # the chunks it was written in (720 s > one 600 s chunk)
-    assert sim_cli.VESSEL_CHUNK_S < duration
+    assert simulate_args.VESSEL_CHUNK_S < duration
     batch, counters = decode_bulk(cap.read_bytes(), "kvh-a", DecoderConfig(rate_hz=RATE))
     assert counters.frames == n and counters.sequence_gaps == 0 and counters.crc_failures == 0
     np.testing.assert_allclose(batch.gyro_dph, data[:, 1:4], rtol=1e-6, atol=1e-3)

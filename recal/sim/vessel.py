@@ -567,7 +567,7 @@ def ship_track(
     ``longitude_deg`` and ``height_m`` of its GNSS antenna (the hull's centre of rotation),
     ``sog_kn`` and ``cog_deg`` (speed and course over ground) and ``heading_deg`` (true heading,
     the sea's yaw swing and slow heading changes included), each (N,). Pure numbers: the NMEA
-    sentences are written by the caller (service.cli.simulate)."""
+    sentences are written by the caller (service.cli.simulate_vessel)."""
     from recal.detect.underway import EARTH_RADIUS_M as R
 
     sched = _Schedule(spec, seed)
