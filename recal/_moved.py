@@ -38,6 +38,29 @@ REMOVED_IN = "0.3.0"
 #: processes to ``recal.runtime.pool``; parts of ``recal.calibrate`` went on to the slews', the
 #: prior's and the Earth-rate modules of recal.solve). From ``git log --diff-filter=R`` (commit
 #: 48a3624).
+#: The modules the slews' and the static detector's names live in, each before the modules that
+#: import its names (the finder searches them in this order).
+_SLEW_MODULES = (
+    "recal.model.reference",  # first: the slew modules import its constants
+    "recal.detect.slew_data",
+    "recal.detect.slew_groups",
+    "recal.detect.slew_collect",
+    "recal.detect.quaternions",
+    "recal.detect.slew_rotation",
+    "recal.detect.slew_gravity",
+    "recal.detect.slew_gauge",
+    "recal.detect.closed_turns",
+    "recal.detect.known_rotations",
+)
+_STATIC_MODULES = (
+    "recal.detect.floor",
+    "recal.detect.windows",
+    "recal.detect.static_accel_only",
+    "recal.detect.static_config",
+    "recal.detect.static_report",
+    "recal.detect.static_detector",
+)
+
 MOVED: dict[str, tuple[str, ...]] = {
     "recal.alignment": ("recal.nav.alignment",),
     "recal.calibrate": (
@@ -76,52 +99,16 @@ MOVED: dict[str, tuple[str, ...]] = {
     "recal.safsa": ("recal.solve.safsa",),
     "recal.session": ("recal.sim.session",),
     "recal.simulate": ("recal.sim.simulate",),
-    "recal.slews": (
-        "recal.model.reference",  # first: the slew modules import its constants
-        "recal.detect.slew_data",
-        "recal.detect.slew_groups",
-        "recal.detect.slew_collect",
-        "recal.detect.quaternions",
-        "recal.detect.slew_rotation",
-        "recal.detect.slew_gravity",
-        "recal.detect.slew_gauge",
-        "recal.detect.closed_turns",
-        "recal.detect.known_rotations",
-    ),
-    "recal.static": (
-        "recal.detect.floor",  # a module before those that import its names
-        "recal.detect.windows",
-        "recal.detect.static_accel_only",
-        "recal.detect.static_config",
-        "recal.detect.static_report",
-        "recal.detect.static_detector",
-    ),
+    "recal.slews": _SLEW_MODULES,
+    "recal.static": _STATIC_MODULES,
     "recal.surrogate": ("recal.solve.surrogate",),
     "recal.swarm": ("recal.solve.swarm",),
     "recal.terms": ("recal.model.terms",),
     "recal.trajectory": ("recal.nav.trajectory",),
     # 0.2.0 paths of modules that only re-exported others (issue 38): the detector's and the
     # slews' pieces each live in a module of their own
-    "recal.detect.static": (
-        "recal.detect.floor",  # a module before those that import its names
-        "recal.detect.windows",
-        "recal.detect.static_accel_only",
-        "recal.detect.static_config",
-        "recal.detect.static_report",
-        "recal.detect.static_detector",
-    ),
-    "recal.detect.slews": (
-        "recal.model.reference",  # first: the slew modules import its constants
-        "recal.detect.slew_data",
-        "recal.detect.slew_groups",
-        "recal.detect.slew_collect",
-        "recal.detect.quaternions",
-        "recal.detect.slew_rotation",
-        "recal.detect.slew_gravity",
-        "recal.detect.slew_gauge",
-        "recal.detect.closed_turns",
-        "recal.detect.known_rotations",
-    ),
+    "recal.detect.static": _STATIC_MODULES,
+    "recal.detect.slews": _SLEW_MODULES,
 }
 
 #: Old modules whose path is now a package: old module -> where its names live now.

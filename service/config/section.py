@@ -9,6 +9,12 @@ from collections.abc import Mapping
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
 
 T = TypeVar("T")
 
@@ -17,6 +23,25 @@ class Section(BaseModel):
     """A configuration section: a key it does not define is an error, not silently ignored."""
 
     model_config = ConfigDict(extra="forbid")
+
+
+class TomlFileSettings(BaseSettings):
+    """A settings file's model (the vessel's ``Settings``, the shore's ``ShoreSettings``): keyword
+    arguments over the environment (``RECAL_SECTION__KEY``) over the TOML file (``toml_file`` of
+    the model config)."""
+
+    model_config = SettingsConfigDict(env_prefix="RECAL_", env_nested_delimiter="__")
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
 
 
 def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:

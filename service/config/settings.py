@@ -8,12 +8,6 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import Field, model_validator
-from pydantic_settings import (
-    BaseSettings,
-    PydanticBaseSettingsSource,
-    SettingsConfigDict,
-    TomlConfigSettingsSource,
-)
 
 from service.config.api import ApiSettings
 from service.config.detector import DetectorSettings
@@ -21,16 +15,14 @@ from service.config.device import DeviceSettings
 from service.config.gate import GateSettings
 from service.config.nav import NavSettings
 from service.config.scheduler import SchedulerSettings
-from service.config.section import check_keys
+from service.config.section import TomlFileSettings, check_keys
 from service.config.site import STILL_DEFAULT_LATITUDE_DEG, SiteSettings
 from service.config.state_dir import default_state_dir
 from service.config.sync import SyncSettings
 
 
-class Settings(BaseSettings):
+class Settings(TomlFileSettings):
     """Everything the daemon needs; see the module docstring for the file layout."""
-
-    model_config = SettingsConfigDict(env_prefix="RECAL_", env_nested_delimiter="__")
 
     # str once loaded: unset, they are filled in under state_dir (see _state_paths)
     database_url: str | None = Field(
@@ -138,15 +130,3 @@ class Settings(BaseSettings):
             return self.gate.fleet_prior
         fetched = self.fetched_fleet_prior()
         return str(fetched) if fetched is not None and fetched.is_file() else None
-
-    @classmethod
-    def settings_customise_sources(
-        cls,
-        settings_cls: type[BaseSettings],
-        init_settings: PydanticBaseSettingsSource,
-        env_settings: PydanticBaseSettingsSource,
-        dotenv_settings: PydanticBaseSettingsSource,
-        file_secret_settings: PydanticBaseSettingsSource,
-    ) -> tuple[PydanticBaseSettingsSource, ...]:
-        # keyword arguments > environment > TOML file (``toml_file`` of the model config)
-        return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)

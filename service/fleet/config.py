@@ -26,14 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import Field, PrivateAttr, SecretStr, field_validator, model_validator
-from pydantic_settings import (
-    BaseSettings,
-    PydanticBaseSettingsSource,
-    SettingsConfigDict,
-    TomlConfigSettingsSource,
-)
 
 from service.config import ApiSettings, Section, check_keys, is_loopback, load_toml_settings
+from service.config.section import TomlFileSettings
 
 log = logging.getLogger("recal.fleet")
 
@@ -153,10 +148,8 @@ def _read_token_file(path: str) -> str:
     return token
 
 
-class ShoreSettings(BaseSettings):
+class ShoreSettings(TomlFileSettings):
     """Everything ``recal fleet serve`` and ``recal fleet add-unit`` need."""
-
-    model_config = SettingsConfigDict(env_prefix="RECAL_", env_nested_delimiter="__")
 
     database_url: str = Field(
         description="where the fleet is kept: postgresql+psycopg://user@host/db (sqlite:///FILE "
@@ -171,17 +164,6 @@ class ShoreSettings(BaseSettings):
         if isinstance(data, dict):
             check_keys(cls, data, section=None)
         return data
-
-    @classmethod
-    def settings_customise_sources(
-        cls,
-        settings_cls: type[BaseSettings],
-        init_settings: PydanticBaseSettingsSource,
-        env_settings: PydanticBaseSettingsSource,
-        dotenv_settings: PydanticBaseSettingsSource,
-        file_secret_settings: PydanticBaseSettingsSource,
-    ) -> tuple[PydanticBaseSettingsSource, ...]:
-        return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
 
 
 def load_shore_settings(path: str | None = None, **overrides: Any) -> ShoreSettings:
