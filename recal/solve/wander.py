@@ -70,3 +70,36 @@ from recal.solve.wander_covariance import innovations
 from recal.solve.wander_estimate import correlation_times, tau_floor_s
 
 __all__ = ["correlation_times", "innovations", "tau_floor_s"]
+
+#: The other names this module held before issue 38's split, and where each lives now: served
+#: with a DeprecationWarning until 0.3.0 (CHANGELOG), as recal._moved serves the older paths.
+_MOVED = {
+    **dict.fromkeys(
+        ("TriadWander", "WanderModel", "window_times", "window_sessions", "possible_wander"),
+        "recal.solve.wander_model",
+    ),  # fmt: skip
+    **dict.fromkeys(("WanderSensitivity", "as_sensitivity"), "recal.solve.wander_chain"),
+    **dict.fromkeys(
+        ("Whitening", "WanderCovariance", "correlation", "wander_covariance", "whitener"),
+        "recal.solve.wander_covariance",
+    ),  # fmt: skip
+    **dict.fromkeys(
+        ("RestrictedLikelihood", "restricted_nll", "wander_gain"), "recal.solve.wander_likelihood"
+    ),  # fmt: skip
+    **dict.fromkeys(("TAU_GRID_S", "WanderFit", "estimate_wander"), "recal.solve.wander_estimate"),
+}
+
+
+def __getattr__(name: str) -> object:
+    target = _MOVED.get(name)
+    if target is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    import warnings
+
+    warnings.warn(
+        f"{__name__}.{name} moved to {target}.{name}; the old path goes in 0.3.0",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return getattr(importlib.import_module(target), name)
