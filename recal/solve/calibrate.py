@@ -42,10 +42,9 @@ from recal.solve.earth_rate import (  # noqa: F401 - scale_noise_needed: re-expo
 )
 from recal.solve.lm import covariance, solve_lm
 from recal.solve.mcs import SWARM_METHODS, run_mcs, solver_for
+from recal.solve.notes import excess_note, observability_notes
 from recal.solve.observability import (
-    COMMON_ROTATION_REASON,
     INFO_MIN,
-    ROTATION_REASON,
     ObservabilityReport,
     analyze,
 )
@@ -128,7 +127,7 @@ def _decided(report: ObservabilityReport, when: str = "") -> ObservabilityReport
     (docs/reference.md#cli). A design that cannot show some scale factors or biases is a
     partial success: those are held at the prior with its uncertainty, the verdict stays
     "insufficient" (a gate can refuse to publish it) and a note says so
-    (:func:`_observability_notes`)."""
+    (:func:`recal.solve.notes.observability_notes`)."""
     if report.verdict == "insufficient" and report.rank == 0:
         where = f" {when}" if when else ""
         raise RecalInputError(f"unusable design{where}: nothing can be estimated: {report.message}")
@@ -140,62 +139,6 @@ def _same_span(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
     if a.shape != b.shape:
         return False
     return bool(np.all(np.linalg.svd(a.T @ b, compute_uv=False) > 1 - tol)) if a.size else True
-
-
-def _excess_note(
-    problem: Problem, theta: np.ndarray, T: np.ndarray, chi2_red: float, method: str
-) -> str:
-    """Why chi2_red exceeds 4. A swarm (above all with --paper) may stop short of the minimum:
-    LM from its solution tells a solver that stopped early from a model that lacks an effect."""
-    if method != "lm" and T.shape[1]:
-        lm = solve_lm(problem, theta, T)
-        _, chi2_lm = covariance(problem, lm.theta, T)
-        if chi2_lm <= 2.0:
-            return (
-                f"chi2_red = {chi2_red:.1f}: the {method} solution stopped short of the minimum; "
-                f"LM from it fits these windows to the noise (chi2_red {chi2_lm:.2f}), so no "
-                "effect is missing: use --method lm (or --polish) rather than recal diagnose"
-            )
-    return (
-        f"chi2_red = {chi2_red:.1f}: residuals exceed the window noise; an effect may be "
-        "missing from the model (try `recal diagnose`)"
-    )
-
-
-def _observability_notes(report: ObservabilityReport, problem: Problem) -> list[str]:
-    """What the user must know about what was held and whether the fit can be checked."""
-    notes = []
-    if report.verdict == "insufficient":
-        notes.append(
-            f"partial calibration: {report.message}; what the data do not show of them is "
-            "held exactly at the prior with its uncertainty ('held'), the rest is estimated"
-        )
-    reasons: dict[str, list[str]] = {}
-    for d, r in zip(report.held_directions, report.held_reasons, strict=True):
-        reasons.setdefault(r, []).append(d)
-    for r, dirs in reasons.items():
-        if r == COMMON_ROTATION_REASON:
-            # the relative frame is estimated only when none of its rotations is held as well
-            weak = any(q.startswith("a rotation of the gyro frame") for q in reasons)
-            head = (
-                "with slews the gyro frame could be estimated relative to the accelerometer "
-                "frame, but here the slews pin it down too weakly (below)"
-                if weak
-                else "with slews the gyro frame is estimated relative to the accelerometer frame"
-            )
-            notes.append(
-                f"{head}; {r} ({len(dirs)} direction(s): {'; '.join(dirs)}); an outside "
-                "reference of known rotations would show it"
-            )
-        elif r != ROTATION_REASON:  # the rotations are expected and listed in observability
-            notes.append(f"held at the prior ({len(dirs)} direction(s): {'; '.join(dirs)}): {r}")
-    if report.redundancy == 0:
-        notes.append(
-            f"exactly determined: {problem.n_residuals} invariant equations for {report.rank} "
-            "observable directions, so the fit makes every residual zero and the residual "
-            "cannot check it; add positions to check the fit"
-        )
-    return notes
 
 
 class _SetUp(NamedTuple):
@@ -549,7 +492,7 @@ def calibrate(
             )
     step()
     status_flat = np.where(report.estimated, "estimated", "held")
-    notes += _observability_notes(report, problem)
+    notes += observability_notes(report, problem)
     if convergence and not convergence.get("converged"):
         notes.append(f"not converged: {convergence.get('reason')}")
     if not problem.noise_known:
@@ -565,7 +508,7 @@ def calibrate(
             "sensor's output units and that the windows are really static"
         )
     elif problem.noise_known and chi2_red > 4.0:
-        notes.append(_excess_note(problem, theta, T, chi2_red, opt.method))
+        notes.append(excess_note(problem, theta, T, chi2_red, opt.method))
     slices = layout.term_slices()
     coeffs = CoefficientSet.from_vector(
         layout,

@@ -34,7 +34,8 @@ from sqlalchemy.orm import aliased
 
 from service.fleet.priors import FleetPriors
 from service.fleet.schema import EventRow, LinkDayRow, UnitRow, VersionRow
-from service.fleet.store import FleetStore, iso_time, utc_day
+from service.fleet.store import FleetStore, iso_time
+from service.store.codec import utc_day
 
 #: Days of traffic in a row's ``bytes_per_day``.
 LINK_DAYS = 7

@@ -41,7 +41,8 @@ from service.fleet.schema import (
     UnitRow,
     VersionRow,
 )
-from service.store.codec import as_utc
+from service.fleet.unit_state import newest_rows
+from service.store.codec import as_utc, utc_day
 from service.store.engine import make_engine
 from service.store.errors import StoreError, one_line
 
@@ -309,7 +310,7 @@ class FleetStore:
                                       ("current_at", top["at"]),
                                       ("current_instance", instance)):  # fmt: skip
                     values[column] = case((newer, value), else_=getattr(UnitRow, column))
-            values |= _newest_rows(
+            values |= newest_rows(
                 unit.id,
                 versions=bool(new["version"]),
                 drift=any(by_kind["event"][i].get("kind") == "drift" for i in new["event"]),
@@ -545,37 +546,6 @@ def _between(query: Any, table: Any, since: datetime | None, until: datetime | N
     if until is not None:
         query = query.where(table.at < until.astimezone(UTC))
     return query
-
-
-def utc_day(at: datetime) -> str:
-    """``YYYY-MM-DD`` of ``at``'s UTC day (``fleet_link_days.day``)."""
-    return as_utc(at).strftime("%Y-%m-%d")
-
-
-def _newest(table: Any, unit_id: int, *where: Any) -> Any:
-    """The shore row id of a unit's newest row of ``table`` matching ``where``: by time, then
-    vessel row id (not row id alone: a rebuilt vessel's ids start at 1 again)."""
-    return (
-        select(table.id)
-        .where(table.unit_id == unit_id, *where)
-        .order_by(table.at.desc(), table.vessel_id.desc())
-        .limit(1)
-        .scalar_subquery()
-    )
-
-
-def _newest_rows(unit_id: int, *, versions: bool, drift: bool) -> dict[str, Any]:
-    """The unit's row ids the overview shows (migration 0009), looked up again when a batch
-    stored versions or drift events: rows may arrive out of order (a backlog, another
-    instance), so the newest is found, not assumed to be the one just stored."""
-    out: dict[str, Any] = {}
-    if versions:
-        out["current_row"] = _newest(VersionRow, unit_id, VersionRow.accepted.is_(True))
-        out["last_version_row"] = _newest(VersionRow, unit_id)
-        out["rejected_row"] = _newest(VersionRow, unit_id, VersionRow.accepted.is_(False))
-    if drift:
-        out["drift_row"] = _newest(EventRow, unit_id, EventRow.kind == "drift")
-    return out
 
 
 def iso_time(value: datetime | None) -> str | None:

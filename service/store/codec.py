@@ -40,6 +40,12 @@ def as_utc(value: datetime) -> datetime:
     return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
 
 
+def utc_day(at: datetime | None = None) -> str:
+    """``YYYY-MM-DD`` of ``at``'s UTC day (default now): the day a link's traffic is counted
+    under, on the vessel (sync statistics) and on shore (``fleet_link_days``)."""
+    return as_utc(at or datetime.now(UTC)).date().isoformat()
+
+
 def finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 

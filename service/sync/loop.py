@@ -24,10 +24,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from service.store.codec import utc_day
 from service.store.errors import StoreError
 from service.sync.batch import MAX_JSON_BYTES, MAX_ROWS, Batch, build
 from service.sync.client import Link, LinkError, Reply
-from service.sync.stats import DOWN, REJECTED, UP, SyncStats, utc_day
+from service.sync.stats import DOWN, REJECTED, UP, SyncStats
 
 log = logging.getLogger("recal.sync")
 

@@ -17,10 +17,6 @@ DAYS_SHOWN = 7
 OFF, UP, DOWN, REJECTED = "off", "up", "down", "rejected"
 
 
-def utc_day(at: datetime | None = None) -> str:
-    return (at or datetime.now(UTC)).astimezone(UTC).date().isoformat()
-
-
 class SyncStats:
     """Thread-safe: the sync thread writes, the API's threads read :meth:`snapshot`."""
 
@@ -96,4 +92,4 @@ def off_block(backlog: int | None) -> dict[str, Any]:
             "last_error": None, "bytes_today": 0, "bytes_per_day": []}  # fmt: skip
 
 
-__all__ = ["DAYS_SHOWN", "DOWN", "OFF", "REJECTED", "UP", "SyncStats", "off_block", "utc_day"]
+__all__ = ["DAYS_SHOWN", "DOWN", "OFF", "REJECTED", "UP", "SyncStats", "off_block"]
