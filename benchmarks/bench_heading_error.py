@@ -63,7 +63,8 @@ from recal.model.reference import OMEGA_IE_DEG_H  # noqa: E402
 from recal.model.terms import MISALIGNMENT_INDEX  # noqa: E402
 from recal.nav.heading import heading_error, horizontal_basis, unit_vertical  # noqa: E402
 from recal.sim.simulate import NoiseSpec  # noqa: E402
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel  # noqa: E402
+from recal.sim.vessel import simulate_vessel  # noqa: E402
+from recal.sim.vessel_spec import SeaState, VesselSpec  # noqa: E402
 from recal.solve.calibrate import calibrate  # noqa: E402
 from recal.solve.options import CalibrationOptions  # noqa: E402
 from service.capture_sim import kvh_like_truth, prior_near  # noqa: E402

@@ -52,7 +52,8 @@ sys.path.insert(0, str(ROOT))
 
 from drivers import DecoderConfig  # noqa: E402
 from recal.sim.simulate import NoiseSpec  # noqa: E402
-from recal.sim.vessel import SeaState, Segment, VesselSpec, vessel_chunks  # noqa: E402
+from recal.sim.vessel import vessel_chunks  # noqa: E402
+from recal.sim.vessel_spec import SeaState, Segment, VesselSpec  # noqa: E402
 from service.capture_sim import encode_kvh, kvh_like_truth, prior_near  # noqa: E402
 from service.config import (  # noqa: E402
     DetectorSettings,

@@ -93,9 +93,9 @@ _API = {
     "simulate_handheld": "recal.sim.session",
     "HandheldSpec": "recal.sim.session",
     "simulate_vessel": "recal.sim.vessel",
-    "VesselSpec": "recal.sim.vessel",
-    "SeaState": "recal.sim.vessel",
-    "Segment": "recal.sim.vessel",
+    "VesselSpec": "recal.sim.vessel_spec",
+    "SeaState": "recal.sim.vessel_spec",
+    "Segment": "recal.sim.vessel_spec",
 }
 
 __all__ = ["__version__", *_API]

@@ -14,7 +14,8 @@ import pytest
 
 from drivers.nmea import circular_mean_deg
 from recal.detect.underway import DEFAULT_MAX_SOG_KN
-from recal.sim.vessel import VesselSpec, ship_track
+from recal.sim.vessel import ship_track
+from recal.sim.vessel_spec import VesselSpec
 from service.cli import ship as ship_cli
 from service.cli import simulate_args
 from service.cli.main import main

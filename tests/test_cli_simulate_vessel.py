@@ -15,7 +15,7 @@ from drivers import DecoderConfig, decode_bulk
 from drivers.registry import kvh_format_names
 from recal.detect.hull import detect_hull
 from recal.detect.rest import RestReference
-from recal.sim.vessel import SeaState, VesselSpec
+from recal.sim.vessel_spec import SeaState, VesselSpec
 from service.capture_sim import CAPTURE_FORMATS
 from service.cli import simulate_args, simulate_writers
 from service.cli.main import build_parser, main

@@ -13,7 +13,8 @@ from drivers.nmea import read_log
 from recal.detect.underway import EARTH_RADIUS_M
 from recal.model.reference import OMEGA_IE_RAD_S, normal_gravity_g
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, Segment, VesselSpec, ship_track, simulate_vessel
+from recal.sim.vessel import ship_track, simulate_vessel
+from recal.sim.vessel_spec import SeaState, Segment, VesselSpec
 from service.capture_sim import kvh_like_truth
 from service.cli.main import main
 

@@ -19,7 +19,8 @@ import pytest
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, random_hull_unit, simulate_vessel
+from recal.sim.vessel import random_hull_unit, simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 from service.cli.main import main
 
 RATE_HZ = 20.0

@@ -27,7 +27,8 @@ from recal.detect.windows import windows_to_columns
 from recal.model.coefficients import read_coefficients
 from recal.model.positions import Positions
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+from recal.sim.vessel import simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
 

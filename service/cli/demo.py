@@ -196,7 +196,8 @@ def _simulate_vessel(
 ) -> tuple[bytes, float, object, object, list[tuple[float, float]], bytes]:
     """The berth session as a KVH capture: (bytes, rate, truth, prior, turn spans in s, the
     ship's NMEA sentences beside it at 1 Hz)."""
-    from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+    from recal.sim.vessel import simulate_vessel
+    from recal.sim.vessel_spec import SeaState, VesselSpec
     from service.capture_sim import kvh_like_truth, prior_near, session_to_kvh, ship_nmea
     from service.cli.common import atomic_write
 

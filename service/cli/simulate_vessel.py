@@ -23,7 +23,8 @@ def run_vessel(args: argparse.Namespace) -> int:
     from recal.model.terms import catalogue_terms
     from recal.nav.alignment import parse_attitude
     from recal.sim.simulate import NoiseSpec
-    from recal.sim.vessel import SeaState, VesselSpec, vessel_chunks
+    from recal.sim.vessel import vessel_chunks
+    from recal.sim.vessel_spec import SeaState, VesselSpec
     from service.capture_sim import encode_kvh, kvh_like_truth
     from service.cli.common import atomic_stream, atomic_write, load_coefficients, progress_bar
 

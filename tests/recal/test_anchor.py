@@ -21,7 +21,8 @@ from recal.detect.windows import windows_to_columns
 from recal.model.coefficients import CoefficientSet
 from recal.model.positions import Positions
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, random_hull_unit, simulate_vessel
+from recal.sim.vessel import random_hull_unit, simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
 

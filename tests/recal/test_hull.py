@@ -14,7 +14,8 @@ from recal.model.coefficients import CoefficientSet
 from recal.nav.navigation import attitude_matrix
 from recal.sim.session import sample_context
 from recal.sim.simulate import NoiseSpec, truth_model
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+from recal.sim.vessel import simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 
 LAT = 45.0
 KVH_NOISE = NoiseSpec(arw_deg_rt_h=0.012, vrw_ug_rt_hz=20.0)

@@ -12,7 +12,8 @@ from recal.detect.hull import HullConfig, HullDetector, detect_hull
 from recal.detect.rest import RestReference
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+from recal.sim.vessel import simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 
 LAT = 45.0
 RATE = 20.0

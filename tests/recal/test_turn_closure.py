@@ -21,7 +21,8 @@ from recal.detect.closed_turns import CHECKED, DECLARED
 from recal.model.coefficients import CoefficientSet
 from recal.sim.session import session_positions, session_slews
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, Segment, VesselSpec, simulate_vessel
+from recal.sim.vessel import simulate_vessel
+from recal.sim.vessel_spec import SeaState, Segment, VesselSpec
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
 

@@ -18,7 +18,8 @@ from recal.errors import RecalInputError
 from recal.model.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS
 from recal.sim.session import simulate_session
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+from recal.sim.vessel import simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import (
     DetectorSettings,

@@ -23,7 +23,8 @@ from drivers.nmea import NavFix, epoch_sentences
 from recal.model.reference import normal_gravity_g
 from recal.sim.session import simulate_session
 from recal.sim.simulate import NoiseSpec
-from recal.sim.vessel import SeaState, VesselSpec, simulate_vessel
+from recal.sim.vessel import simulate_vessel
+from recal.sim.vessel_spec import SeaState, VesselSpec
 from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.cli.main import main
 from service.config import (
