@@ -50,7 +50,7 @@ class DetectorSettings(Section):
     max_gap_frames: int = Field(
         5, ge=0, description="longest run of lost or invalid frames a window may contain"
     )
-    # the hull detector (recal.detect.hull); the defaults are recal.detect.hull.HullConfig's
+    # the hull detector (recal.detect.hull); the defaults are recal.detect.hull_config.HullConfig's
     motion: Literal["still", "hull"] = Field(
         "still",
         description="still: windows where the moving variance is low (a unit at rest); hull: "
@@ -92,8 +92,8 @@ class DetectorSettings(Section):
         return self
 
     def hull_config(self) -> Any:
-        """The hull detector's :class:`recal.detect.hull.HullConfig` from the hull_* keys."""
-        from recal.detect.hull import HullConfig
+        """The hull detector's :class:`recal.detect.hull_config.HullConfig` from the hull_* keys."""
+        from recal.detect.hull_config import HullConfig
 
         return HullConfig(
             turn_window_s=self.hull_turn_window_s,

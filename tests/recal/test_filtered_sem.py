@@ -25,7 +25,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from recal.detect.hull import HullConfig, _parabolic_kernel, detect_hull
+from recal.detect.hull import detect_hull
+from recal.detect.hull_blocks import parabolic_kernel
+from recal.detect.hull_config import HullConfig
 from recal.detect.noise import allan_sums, block_sums, standard_errors
 from recal.detect.rest import RestReference
 from recal.detect.static_sums import allan_window_sem
@@ -111,7 +113,7 @@ def _synthetic(cutoff_hz: float | None, seed: int, windows: int = 150, n: int = 
         noise = OutputFilter(cutoff_hz).apply(noise, RATE)[0]
     noise = noise.reshape(windows, n, 3)
     t = np.arange(n)[:, None] / RATE
-    w = _parabolic_kernel(n)
+    w = parabolic_kernel(n)
     sw2 = float(w @ w)
     err, new, old = [], [], []
     for e in noise:  # a loop over windows; each estimate is vectorised over samples and axes
@@ -195,7 +197,7 @@ def _hull_z(cutoff_hz: float | None, seed: int, roll_deg: float = 1.0, hold_s: f
     for hw in wins:
         win = hw.window
         sel = slice(win.start_index, win.end_index + 1)
-        w = _parabolic_kernel(win.samples)
+        w = parabolic_kernel(win.samples)
         sw2 = float(w @ w)
         row = []
         for out, ref, sem, motion, sigma, scale in (

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.detect.hull import HullConfig, HullDetector, detect_hull
+from recal.detect.hull import HullDetector, detect_hull
+from recal.detect.hull_config import HullConfig
 from recal.detect.rest import RestReference
 from recal.model.coefficients import CoefficientSet
 from recal.sim.simulate import NoiseSpec

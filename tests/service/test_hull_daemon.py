@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from drivers import DecoderConfig, decode_bulk
-from recal.detect.hull import HullConfig, HullDetector
+from recal.detect.hull import HullDetector
+from recal.detect.hull_config import HullConfig
 from recal.detect.rest import RestReference
 from recal.errors import RecalInputError
 from recal.model.positions import ACCEL_SEM_COLUMNS, GYRO_SEM_COLUMNS

@@ -146,7 +146,7 @@ def test_the_rest_check_refuses_what_is_not_at_rest_and_follows_the_latitude(fra
 
 
 def test_the_hull_stage_needs_a_rest_reference() -> None:
-    from recal.detect.hull import HullConfig
+    from recal.detect.hull_config import HullConfig
     from recal.errors import RecalInputError
 
     with pytest.raises(RecalInputError, match="deg/h and g"):
