@@ -38,7 +38,9 @@ import numpy as np
 
 from recal.model.coefficients import CoefficientSet
 from recal.nav.alignment import align_static
-from recal.nav.ins_error import describe_change, predict_from_uncertainty, predict_static_error
+from recal.nav.ins_impact import describe_change
+from recal.nav.ins_static import predict_static_error
+from recal.nav.ins_uncertainty import predict_from_uncertainty
 from recal.nav.navigation import NMI_M, correct_outputs, decimate, navigate
 from recal.nav.trajectory import DEFAULT_LEGS, Leg, VoyageSpec, simulate_voyage
 from recal.sim.simulate import NoiseSpec, simulate_positions

@@ -21,7 +21,7 @@ from service.config import GateSettings
 from service.store.records import CalibrationRecord
 
 if TYPE_CHECKING:
-    from recal.nav.ins_error import NavigationImpact
+    from recal.nav.ins_impact import NavigationImpact
 
 #: Verdicts of recal.solve.observability from worst to best.
 VERDICTS = ("insufficient", "partial", "full")

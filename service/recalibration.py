@@ -127,19 +127,14 @@ def fleet_ageing(
 
 def navigation_impact_of(result: Any, previous: Any, site: dict[str, Any]) -> Any:
     """The predicted 24 h static navigation error of a fit, and of replacing ``previous`` (the
-    accepted :class:`CalibrationRecord`, or None) by it (:class:`recal.nav.ins_error.NavigationImpact`).
+    accepted :class:`CalibrationRecord`, or None) by it (:class:`recal.nav.ins_impact.NavigationImpact`).
 
     Coefficients the fit held keep the accepted version's 1-sigma (they were held at its
     values); a triad the fit did not calibrate is taken from the accepted version.
     """
     from recal.model.coefficients import CoefficientSet
-    from recal.nav.ins_error import (
-        complete_seed_set,
-        navigation_impact,
-        predict_from_uncertainty,
-        seed_covariance,
-        sigma_from_doc,
-    )
+    from recal.nav.ins_impact import complete_seed_set, navigation_impact, seed_covariance
+    from recal.nav.ins_uncertainty import predict_from_uncertainty, sigma_from_doc
 
     lat, height = result.problem.latitude_deg, result.problem.height_m
     attitude = tuple(site.get("imu_attitude_rpy_deg", (0.0, 0.0, 0.0)))
@@ -200,7 +195,7 @@ def navigation_summary(
     "after" is the fit's uncertainty (the held part included). "before" is ``previous``'s (the
     accepted version: its stored figures), else the prior's 1-sigma the fit started from (the
     prior file ``prior_name``, or the sensor class's defaults without one). ``impact``: the
-    fit's :class:`recal.nav.ins_error.NavigationImpact` against ``previous`` when already
+    fit's :class:`recal.nav.ins_impact.NavigationImpact` against ``previous`` when already
     computed. A figure that cannot be given is replaced by its reason (``*_unavailable``).
     """
     from recal.nav.heading import LEVEL, heading_change, vertical_from_specific_force

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from recal.model.coefficients import CoefficientSet
-from recal.nav.ins_error import predict_static_error
+from recal.nav.ins_static import predict_static_error
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions

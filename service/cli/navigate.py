@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     from recal.errors import RecalInputError
     from recal.model.terms import catalogue_terms
     from recal.nav.alignment import align_static
-    from recal.nav.ins_error import schuler_amplitude_m
+    from recal.nav.ins_static import schuler_amplitude_m
     from recal.nav.navigation import (
         NMI_M,
         attitude_matrix,

@@ -73,14 +73,8 @@ def run(args: argparse.Namespace) -> int:
 
     from recal.errors import RecalInputError
     from recal.nav.alignment import parse_attitude
-    from recal.nav.ins_error import (
-        SEED_PARAMETERS,
-        SEED_TERMS,
-        complete_seed_set,
-        navigation_impact,
-        seed_sigma,
-        sigma_from_doc,
-    )
+    from recal.nav.ins_impact import complete_seed_set, navigation_impact
+    from recal.nav.ins_uncertainty import SEED_PARAMETERS, SEED_TERMS, seed_sigma, sigma_from_doc
     from recal.nav.navigation import NMI_M
 
     if not -90.0 <= args.latitude <= 90.0:

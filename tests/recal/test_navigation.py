@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from recal.model.coefficients import CoefficientSet
-from recal.nav.ins_error import predict_static_error
+from recal.nav.ins_static import predict_static_error
 from recal.nav.navigation import (
     Decimator,
     attitude_matrix,

@@ -9,12 +9,9 @@ import numpy as np
 import pytest
 
 from recal.model.coefficients import CoefficientSet
-from recal.nav.ins_error import (
-    complete_seed_set,
-    predict_from_uncertainty,
-    predict_static_error,
-    seed_covariance,
-)
+from recal.nav.ins_impact import complete_seed_set, seed_covariance
+from recal.nav.ins_static import predict_static_error
+from recal.nav.ins_uncertainty import predict_from_uncertainty
 from recal.nav.navigation import NMI_M
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
