@@ -443,7 +443,7 @@ def fill_unit_state(conn: Any) -> None:
     state = importlib.import_module("service.fleet.migrations.versions.0009_unit_state")
     conn.execute(state.FILL_UNITS)
     conn.execute("DELETE FROM fleet_link_days")
-    conn.execute(state.FILL_DAYS.format(day=state.DAY["postgresql"]).replace("%", "%%"))
+    conn.execute(state.FILL_DAYS.format(day=state.DAY["postgresql"]))
 
 
 def bulk_load(url: str, fleet: Fleet, units: list[UnitPlan], chunk_days: int) -> dict[str, Any]:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import and_, case, func, or_, select, text, update
+from sqlalchemy import func, select, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, SQLAlchemyError
@@ -295,21 +295,6 @@ class FleetStore:
                 values["n_rejected"] = UnitRow.n_rejected + rejected
             if recorded:
                 values["n_conflicts"] = UnitRow.n_conflicts + recorded
-            accepted = [by_kind["version"][v] for v in new["version"]
-                        if by_kind["version"][v]["accepted"]]  # fmt: skip
-            if accepted:
-                # the current version: the newest accepted by creation time, whichever instance
-                # made it (a rebuilt vessel's version numbers start at 1 again)
-                top = max(accepted, key=lambda v: (v["at"], v["vessel_id"]))
-                newer = or_(
-                    UnitRow.current_at.is_(None),
-                    UnitRow.current_at < top["at"],
-                    and_(UnitRow.current_at == top["at"], UnitRow.current_version <= top["vessel_id"]),
-                )  # fmt: skip
-                for column, value in (("current_version", top["vessel_id"]),
-                                      ("current_at", top["at"]),
-                                      ("current_instance", instance)):  # fmt: skip
-                    values[column] = case((newer, value), else_=getattr(UnitRow, column))
             values |= newest_rows(
                 unit.id,
                 versions=bool(new["version"]),
