@@ -189,7 +189,7 @@ def nafsa(
         cf = cf_lo + (cf_hi - cf_lo) * uniform(rng, (idx.size,), 0.0)  # eq. 4
         if cfg.cf_mode == "adaptive":
             improved = book.best_f[idx] < best_before
-            spread = median_fish(distances(zi, book.best_z[idx])) / np.sqrt(dim)
+            spread = median_fish(distances(zi, book.best_z.take(idx, axis=0))) / np.sqrt(dim)
             floor = np.minimum(cfg.visual_floor * spread, si)
             si = np.where(improved, np.minimum(si * cfg.cf_success, 1.0), si * cf)
             si = np.maximum(si, floor)
@@ -245,7 +245,7 @@ def _group_behaviour(
     center = swarm_mean(z)[:, None, :]  # X_Center, (n, 1, D)
     f_center = book.evaluate(center, runs)  # the bulletin update applies eq. 10
     toward_center = f_center < fz  # (n, F)
-    target = np.where(toward_center[..., None], center, book.best_z[runs][:, None, :])
+    target = np.where(toward_center[..., None], center, book.best_z.take(runs, axis=0)[:, None, :])
     length = uniform(rng, z.shape, 0.0)
     length *= scale[:, None, None]  # Visual * Rand(0, 1), per dimension
     z = move_toward(z, target, length)

@@ -16,6 +16,7 @@ theta = base + transform @ x) and the swarm's initial per-dimension Visual (d,).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,11 +36,23 @@ SEED_000_TABLE1_VISUAL = {
 CATEGORY_ORDER = ("scale", "bias", "misalignment", "quadratic")
 
 
+#: The whitened phase's directions are searched in independent blocks of at most this many, as
+#: the seed's phases search a category of 3 to 6 coefficients at a time (see :class:`Phase`).
+WHITENED_BLOCK = 3
+
+
 @dataclass(frozen=True)
 class Phase:
+    """Directions ``transform`` (D, d) searched from initial Visual ``visual`` ((d,) or (R, d)
+    per run). ``blocks`` > 0: the objective is separable into consecutive blocks of at most that
+    many directions (no cross terms between blocks, as in whitened coordinates, where a
+    Gauss-Newton model's Hessian is the identity), so a solver may search the blocks side by
+    side, each as a swarm of its own; 0: search the directions jointly."""
+
     name: str
     transform: np.ndarray  # (D, d)
     visual: np.ndarray  # (d,) or (R, d) per run
+    blocks: int = 0
 
 
 def paper_phases(layout: ParameterLayout, typical: np.ndarray) -> list[Phase]:
@@ -70,6 +83,7 @@ def whitened_phase(
     report: ObservabilityReport,
     objective_now: np.ndarray | None = None,
     visual_sigmas: float = 3.0,
+    jacobian_along: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Phase:
     """Joint phase over the observable directions, in coordinates where 1 unit = 1 sigma.
 
@@ -79,9 +93,13 @@ def whitened_phase(
     capped per run by the distance the current objective allows: the swarm objective is
     chi^2 / (R - 1) (the least squares; ~chi^2 / (M - 1) for eq. 14,
     :attr:`recal.solve.problem.Problem.objective_dof`), so |y - y*| <= sqrt(dof * objective).
+    ``jacobian_along``: the whitened residuals' Jacobian along given directions at ``theta``
+    when the caller has a model of them (a swarm's Gauss-Newton model: the phase is then
+    whitened for that very model, whose Hessian becomes the identity); default: central
+    differences of ``problem``.
     """
     T = typical[:, None] * report.basis
-    J = jacobian(problem, theta, T.T)
+    J = jacobian(problem, theta, T.T) if jacobian_along is None else jacobian_along(T.T)
     _, s, Wt = np.linalg.svd(J, full_matrices=False)
     s = np.maximum(s, 1e-12 * s.max())
     transform = T @ Wt.T / s
@@ -93,4 +111,4 @@ def whitened_phase(
     if objective_now is not None:
         radius = 1.5 * np.sqrt(problem.objective_dof * np.asarray(objective_now, float))
         visual = np.minimum(visual[None, :], np.maximum(radius, 1.0)[:, None])
-    return Phase("observable (whitened)", transform, visual)
+    return Phase("observable (whitened)", transform, visual, WHITENED_BLOCK)

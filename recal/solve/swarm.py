@@ -188,16 +188,15 @@ class SwarmBook:
         Returns ``(n, K)``. Updates the best-so-far of the runs from every evaluated point.
         """
         n, k, _ = z.shape
-        x = self._to_parameters(z, runs)
-        if mask is None:
-            x = x.reshape(n * k, self.dim)
-        else:
-            x = x[mask]
+        x = self._to_parameters(z, runs).reshape(n * k, self.dim)
+        picked = None if mask is None else np.flatnonzero(mask)  # rows in mask order
+        if picked is not None:
+            x = x.take(picked, axis=0)  # take: several times faster than a boolean index
         p = x.shape[0]
         if p == 0:
             return np.full((n, k), np.inf)
         if self.with_runs:
-            owner = np.repeat(runs, k) if mask is None else runs[np.nonzero(mask)[0]]
+            owner = np.repeat(runs, k) if picked is None else runs.take(picked // k)
             fx = np.array(self.objective(x, owner), dtype=float)
         else:
             fx = np.array(self.objective(x), dtype=float)  # a private copy, nan replaced below
@@ -205,11 +204,12 @@ class SwarmBook:
             raise ValueError(f"objective returned shape {fx.shape}, expected ({p},)")
         fx[np.isnan(fx)] = np.inf
         self.evaluations += p
-        if mask is None:
+        if picked is None:
             f = fx.reshape(n, k)
         else:
-            f = np.full((n, k), np.inf)
-            f[mask] = fx
+            f = np.full(n * k, np.inf)
+            f[picked] = fx
+            f = f.reshape(n, k)
         # Bulletin: best of this batch per run, kept only if strictly better than the stored best.
         j = np.argmin(f, axis=1)
         fj = f[np.arange(n), j]

@@ -119,7 +119,7 @@ def test_in_process_swarm_runs_with_one_blas_thread():
     base = calibrate(pos, CalibrationOptions(sensor="gyro"))
     seen = []
 
-    def phases(runs: np.ndarray) -> list:
+    def phases(runs: np.ndarray, model) -> list:
         seen.append(blas_threads())
         return []
 
