@@ -9,12 +9,12 @@ sends, and turned into positions and slews by ``recal positions`` -- the path th
 takes. Both triads are then calibrated by LM and by MCS-NAFSA (default options, ``--mc``
 runs), one after the other in the same process, and the script prints per size:
 
-* wall time of each, their ratio, and the issue-19 targets (30 positions: MCS-NAFSA within
-  12x LM + 10 s and under 60 s; 60 positions: growth at most linear in the number of slews);
+* wall time of each, their ratio, and the targets (issue 38, 30 positions: MCS-NAFSA at most
+  3x LM in the same run; issue 19, 60 positions: growth at most linear in the number of slews);
 * the split of MCS-NAFSA's time (set-up and covariance, the swarm, the exact LM convergence
-  check) and inside the swarm the per-evaluation cost of the static invariants, of the exact
-  slew invariant and of the linearised one, with what the swarm would have cost evaluating the
-  slews exactly;
+  check) and inside the swarm the per-evaluation cost of the exact objective and of the
+  Gauss-Newton model the swarms search (recal.solve.surrogate), with what the swarm would have
+  cost evaluating the exact objective;
 * accuracy: RMS over the data sets and the estimated coefficients of (estimate - truth) /
   CRLB-sigma (the Cramer-Rao bound from the fit's own noise model at the truth, the truth taken
   to the accelerometer-frame gauge the fit holds); 1.0 is efficient, target 1.2;
@@ -107,8 +107,9 @@ class Timer:
 
 
 def per_eval_costs(result, P: int = 2500) -> dict[str, float]:
-    """Seconds per parameter vector at the swarm's batch size: static invariants, the exact
-    slew invariant, the linearised one (static + quadratic form), and one linearisation."""
+    """Seconds per parameter vector at the swarm's batch size: the exact objective (static and
+    slew invariants), the Gauss-Newton model the swarm searches (its quadratic form over the
+    whitened directions), and one linearisation (the model's 2 D + 1 exact evaluations)."""
     problem, theta = result.problem, result.theta
     rng = np.random.default_rng(0)
     typical = problem.layout.typical(theta)
@@ -128,12 +129,11 @@ def per_eval_costs(result, P: int = 2500) -> dict[str, float]:
 
     small = X[:200]  # the exact objective is slow: time it on fewer vectors
     exact = clock(lambda: problem.objective(small)) * P / small.shape[0]
-    static = clock(lambda: sur.static.objective(X))
     basis = typical[:, None] * result.observability.basis
     f = sur.phase_objective(np.repeat(theta[None], 50, axis=0), basis)
     Y = rng.normal(size=(P, basis.shape[1]))
-    surrogate = clock(lambda: f(Y, run))
-    return {"exact": exact, "static": static, "surrogate": surrogate, "linearise": t_lin}
+    model = clock(lambda: f(Y, run))
+    return {"exact": exact, "model": model, "linearise": t_lin}
 
 
 def crlb_z(result, truth) -> np.ndarray:
@@ -219,9 +219,8 @@ def main() -> None:
     for n, r in results.items():
         lm, nf = float(np.median(r["t_lm"])), float(np.median(r["t_nafsa"]))
         target, ok = "-", None
-        if n == 30:
-            limit = min(12 * lm + 10, 60)
-            target, ok = f"wall <= min(12 x LM + 10, 60) = {limit:.1f} s", nf <= limit
+        if n == 30:  # issue 38: at most 3 times LM, in the same run
+            target, ok = f"wall <= 3 x LM = {3 * lm:.2f} s", nf <= 3 * lm
         print(f"| {n} + {int(np.median(r['slews']))} | {lm:.2f} | {nf:.2f} | {nf / lm:.1f}x "
               f"| {np.median(r['cpu_lm']):.2f} | {np.median(r['cpu_nafsa']):.1f} | {target} "
               f"| {'-' if ok is None else verdict(ok)} |")  # fmt: skip
@@ -234,10 +233,10 @@ def main() -> None:
                   f"at most linear | {verdict(growth <= slews)} |")  # fmt: skip
     print("\n## Where MCS-NAFSA's time goes (median per calibration)\n")
     print("| positions | total (s) | set-up, observability, covariance (s) | swarm (s) "
-          "| exact LM convergence check (s) | evaluations | static invariants (us/eval) "
-          "| exact slews (us/eval) | linearised (us/eval) | one linearisation (ms) "
-          "| swarm with exact slews, estimated (s) |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| exact LM convergence check (s) | evaluations | exact objective (us/eval) "
+          "| Gauss-Newton model (us/eval) | one linearisation (ms) "
+          "| swarm on the exact objective, estimated (s) |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n, r in results.items():
         c = r["costs"]
         tot, mcs, chk = (float(np.median(r[k])) for k in ("t_nafsa", "t_mcs", "t_check"))
@@ -245,8 +244,8 @@ def main() -> None:
         # the swarm's evaluations at the exact cost, over the cores the workers use
         exact_est = ev * c["exact"] / max(1, min(2, os.cpu_count() or 1))
         print(f"| {n} | {tot:.2f} | {tot - mcs - chk:.2f} | {mcs:.2f} | {chk:.2f} | {ev:.3g} "
-              f"| {c['static'] * 1e6:.2f} | {c['exact'] * 1e6:.1f} | {c['surrogate'] * 1e6:.2f} "
-              f"| {c['linearise'] * 1e3:.1f} | {exact_est:.0f} |")  # fmt: skip
+              f"| {c['exact'] * 1e6:.1f} | {c['model'] * 1e6:.2f} | {c['linearise'] * 1e3:.1f} "
+              f"| {exact_est:.0f} |")  # fmt: skip
     print("\n## Accuracy and agreement\n")
     print("| positions | LM error / CRLB (RMS) | MCS-NAFSA error / CRLB (RMS) | target "
           "| verdict | median NAFSA-LM (LM sigma) | median MC std / LM sigma "

@@ -219,7 +219,7 @@ def _individual_behaviour(
         zj += z  # X_j = X_i + Visual * U(-1, 1)
         fj = book.evaluate(zj, runs, pending)
         ok = pending & (fj <= fz)  # eq. 6: move when f(X_i) >= f(X_j)
-        np.copyto(z, zj, where=ok[..., None])
+        _move(z, zj, ok)
         np.copyto(fz, fj, where=ok)
         pending &= ~ok
         if not pending.any():
@@ -228,9 +228,20 @@ def _individual_behaviour(
     zf *= vis
     zf += z  # eq. 7: X_i + Visual * U(-1, 1), accepted even if worse
     ff = book.evaluate(zf, runs, pending)
-    np.copyto(z, zf, where=pending[..., None])
+    _move(z, zf, pending)
     np.copyto(fz, ff, where=pending)
     return z, fz
+
+
+def _move(z: np.ndarray, to: np.ndarray, which: np.ndarray) -> None:
+    """``z[which] = to[which]`` in place for fish ``which`` (n, F) of ``z`` (n, F, D): row
+    indices, about twice as fast as a mask broadcast over D."""
+    if not (z.flags.c_contiguous and to.flags.c_contiguous):  # reshape would copy
+        np.copyto(z, to, where=which[..., None])
+        return
+    rows = np.flatnonzero(which)
+    d = z.shape[-1]
+    z.reshape(-1, d)[rows] = to.reshape(-1, d).take(rows, axis=0)
 
 
 def _group_behaviour(
