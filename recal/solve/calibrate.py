@@ -47,6 +47,7 @@ from recal.solve.observability import (
     INFO_MIN,
     ObservabilityReport,
     analyze,
+    typical_jacobian,
 )
 from recal.solve.options import CalibrationOptions
 from recal.solve.phases import paper_phases, whitened_phase
@@ -422,6 +423,7 @@ def calibrate(
             theta, evaluations = lm.theta, evaluations + lm.evaluations
     step()
     info_min = INFO_MIN if report.noise_decided else 0.0
+    J_at = None  # the observability Jacobian at the answer, when it is already known
     if opt.method == "lm" or opt.polish:
         fixed = fixed_point(problem, theta, theta0, typical, report.basis)
         problem, theta, evaluations = fixed.problem, fixed.theta, evaluations + fixed.evaluations
@@ -429,12 +431,13 @@ def calibrate(
     else:
         assert mcs is not None
         # the gap to LM's minimum within the Monte Carlo mean's own sampling error
+        J_at = typical_jacobian(problem, theta, typical)  # this check's and the analysis below
         convergence = swarm_convergence(problem, theta, theta0, typical, info_min, opt.method,
-                                        mcs.runs, mcs.pairs, report.basis)  # fmt: skip
+                                        mcs.runs, mcs.pairs, report.basis, J_at)  # fmt: skip
         evaluations += convergence.pop("evaluations", 0)
     step()
     solved = report
-    report = analyze(problem, theta, typical, info_min=info_min, weights=weights, bar=bar)
+    report = analyze(problem, theta, typical, info_min=info_min, weights=weights, bar=bar, J=J_at)
     if opt.refuse_at_solution:
         report = _decided(report, "at the solution")
     if opt.paper and opt.method != "lm":

@@ -207,6 +207,7 @@ def swarm_convergence(
     runs: np.ndarray | None = None,
     pairs: np.ndarray | None = None,
     basis: np.ndarray | None = None,
+    J: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Did a swarm reach the minimum? LM from its answer finds the minimum, and the gap is
     tested against the Monte Carlo mean's own sampling error (module doc; the answer itself
@@ -215,8 +216,9 @@ def swarm_convergence(
     ``theta``: the swarm's answer, the mean of ``runs`` (R, D) (None: ``theta`` alone, one
     run). ``pairs`` (P, 2): the runs' antithetic pairs (:attr:`recal.solve.mcs.MCSResult.pairs`;
     None: the runs are independent). ``basis`` (D, k): the directions the swarm searched
-    (typical-scaled; None: those observable at ``theta``)."""
-    report = analyze(problem, theta, typical, info_min=info_min)
+    (typical-scaled; None: those observable at ``theta``). ``J``: the observability Jacobian at
+    ``theta`` (:func:`recal.solve.observability.typical_jacobian`) when the caller has it."""
+    report = analyze(problem, theta, typical, info_min=info_min, J=J)
     T = typical[:, None] * report.basis
     if not T.shape[1]:
         return {"converged": True, "reason": None, "evaluations": 0}

@@ -366,6 +366,14 @@ TIE = 0.1
 CLEAN = 1e-6
 
 
+def typical_jacobian(problem: Problem, theta: np.ndarray, typical: np.ndarray) -> np.ndarray:
+    """The Jacobian :func:`analyze` judges, (R, D): along every parameter's typical change, at
+    ``theta`` with the terms linearised about neutral put there (``layout.linearization_mask``)."""
+    layout = problem.layout
+    theta_lin = np.where(layout.linearization_mask(), layout.neutral(), theta)
+    return jacobian(problem, theta_lin, np.diag(typical))
+
+
 def analyze(
     problem: Problem,
     theta: np.ndarray,
@@ -374,6 +382,7 @@ def analyze(
     info_min: float = INFO_MIN,
     weights: np.ndarray | None = None,
     bar: np.ndarray | None = None,
+    J: np.ndarray | None = None,
 ) -> ObservabilityReport:
     """Observability of every parameter of ``problem`` at ``theta`` (D,).
 
@@ -385,12 +394,14 @@ def analyze(
     looser (None: all 1); a scale factor or bias the data pin down better than that prior is
     estimated even when they do not reach its typical change (holding it would leave more).
     Structural rank and the other groups are decided on the typical-scaled Jacobian alone.
+    ``J``: :func:`typical_jacobian` at ``theta`` when the caller has it (one analysis of a
+    solution shares it with the next).
     """
     layout = problem.layout
     names = layout.names
     D = layout.size
-    theta_lin = np.where(layout.linearization_mask(), layout.neutral(), theta)
-    J = jacobian(problem, theta_lin, np.diag(typical))  # (R, D)
+    if J is None:
+        J = typical_jacobian(problem, theta, typical)  # (R, D)
     R = J.shape[0]
     s_max = float(np.linalg.svd(J, compute_uv=False)[0]) if D and R else 0.0
     structural = max(rcond * s_max, 1e-300)

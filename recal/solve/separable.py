@@ -82,8 +82,9 @@ def search_blocks(
     # every batch the solver evaluates (rows come in increasing swarm order)
     gb = np.pad(g, ((0, 0), (0, pad))).reshape(R, B, k).transpose(1, 0, 2).reshape(B * R, k)
     vis = np.broadcast_to(np.asarray(visual, float), (R, d))
-    vis = np.concatenate([vis, np.broadcast_to(np.median(vis, axis=1, keepdims=True), (R, pad))],
-                         axis=1)  # fmt: skip
+    if pad:
+        fill = np.broadcast_to(np.median(vis, axis=1, keepdims=True), (R, pad))
+        vis = np.concatenate([vis, fill], axis=1)
     vis = vis.reshape(R, B, k).transpose(1, 0, 2).reshape(B * R, k)
     firsts = np.arange(1, B) * R  # first swarm of blocks 1 .. B-1
 

@@ -177,6 +177,7 @@ class SwarmBook:
         self._scales: list[np.ndarray] = []
         self.iteration = 0
         self._tiles: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._offset = bool(self.center.any())  # searches about the origin skip the add
 
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(
@@ -237,9 +238,10 @@ class SwarmBook:
             self._tiles[k] = tiles
         vt, ct = tiles
         if n != self.runs:  # runs are sorted and unique, so n == R means all runs
-            vt, ct = vt[runs], ct[runs]
+            vt, ct = vt.take(runs, axis=0), ct.take(runs, axis=0)
         x = z.reshape(n, k * d) * vt
-        x += ct
+        if self._offset:
+            x += ct
         return x.reshape(n, k, d)
 
     def best_x(self) -> np.ndarray:
