@@ -80,7 +80,7 @@ def test_every_synopsis_flag_exists() -> None:
 NOT_RUN = {
     "pip install": "installs the package (the tests run the installed one)",
     "recal demo": "the whole service on a 20-minute session: about a minute (tests/service cover it)",
-    "--method nafsa": "a swarm of 100 Monte Carlo runs: 15-50 s each",
+    "--paper": "the seeds' swarm on the exact objective: about 40 s",
     "recal serve": "a daemon that runs until stopped",
     "sudo ": "installs the service on a host",
     "secrets.token_urlsafe": "part of the host installation",
@@ -143,6 +143,7 @@ def test_the_readme_examples_run_in_order(tmp_path: Path) -> None:
     env.pop("CI", None)  # a README user has no CI set: no test-only strictness in the commands
     missing: set[str] = set()  # files a command not run here would have written
     ran, failures = 0, []
+    took: dict[str, float] = {}
     for command, expected in _commands(README.read_text()):
         skip = next((why for frag, why in NOT_RUN.items() if frag in command), None)
         words = set(shlex.split(command))
@@ -161,12 +162,15 @@ def test_the_readme_examples_run_in_order(tmp_path: Path) -> None:
             failures.append(f"{command}: over {COMMAND_TIMEOUT_S:.0f} s")
             continue
         ran += 1
+        took[command] = time.perf_counter() - t0
         if proc.returncode != expected:
             tail = proc.stderr.strip().splitlines()[-3:]
             failures.append(f"{command}: exit {proc.returncode}, README says {expected}: {tail}")
         elif expected == 2:  # a refusal is one line on stderr (common rules)
             assert proc.stderr.strip().splitlines()[-1].startswith("recal "), proc.stderr
         assert time.perf_counter() - t0 < COMMAND_TIMEOUT_S
+    slowest = sorted(took.items(), key=lambda kv: -kv[1])[:5]
+    print("slowest README commands:", *(f"{t:.1f} s  {c}" for c, t in slowest), sep="\n  ")
     assert not failures, "\n".join(failures)
     assert ran >= 12, f"only {ran} README commands ran"
 

@@ -87,7 +87,6 @@ def search_blocks(
         vis = np.concatenate([vis, fill], axis=1)
     vis = vis.reshape(R, B, k).transpose(1, 0, 2).reshape(B * R, k)
     firsts = np.arange(1, B) * R  # first swarm of blocks 1 .. B-1
-
     ones = np.ones(k)
 
     def f(X: np.ndarray, run: np.ndarray) -> np.ndarray:
