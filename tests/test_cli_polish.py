@@ -158,3 +158,27 @@ def test_paper_mode_excess_is_blamed_on_the_solver_when_lm_fits(
     assert "converged: NO -- the nafsa answer is" in out and "the swarm stopped short" in out
     assert "recal diagnose`" not in out
     assert "MC std: the spread of the coefficient over the 10 Monte Carlo runs" in out
+
+
+@pytest.mark.parametrize(
+    "extra, expected",
+    [
+        ([], None),  # the method's own defaults (calibrate picks them)
+        (["--fish", "30"], (30, 12)),  # the default whitened NAFSA: 12 iterations per cycle
+        (["--iterations", "60"], (50, 60)),  # asked for explicitly: kept, even at Table 1's 60
+        (["--fish", "30", "--paper"], (30, 60)),  # the seeds' phases: Table 1's 60
+        (["--fish", "20", "--method", "safsa"], (20, 60)),
+    ],
+)
+def test_swarm_size_flags_default_to_the_methods_own(extra: list[str], expected) -> None:
+    from service.cli.calibrate import options_from_args
+
+    parser = build_parser()
+    argv = ["calibrate", "p.csv", "--latitude", "45"]
+    if "--method" not in extra:
+        argv += ["--method", "nafsa"]
+    opt = options_from_args(parser.parse_args(argv + extra))
+    cfg = opt.swarm_config
+    assert (None if cfg is None else (cfg.fish, cfg.iterations)) == expected
+    if "--paper" in extra:
+        assert cfg.cf_mode == "literal"
