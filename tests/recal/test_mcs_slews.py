@@ -7,27 +7,20 @@ import numpy as np
 import pytest
 
 from recal.model.coefficients import CoefficientSet
-from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.options import CalibrationOptions
 from recal.solve.surrogate import SurrogateProblem, data_noise
-from service.capture_sim import kvh_like_truth
-
-LATITUDE = 40.0
 
 
-@pytest.fixture(scope="module")
-def session_data():
-    s = simulate_session(kvh_like_truth(7), "random", n_positions=12, latitude_deg=LATITUDE,
-                         seed=7, rate_hz=100.0, window_s=8.0, slew_s=3.0)  # fmt: skip
-    return session_positions(s), session_slews(s)
+@pytest.fixture
+def session_data(slew_session):
+    return slew_session
 
 
-@pytest.fixture(scope="module")
-def lm(session_data):
-    pos, slews = session_data
-    return calibrate(pos, CalibrationOptions(latitude_deg=LATITUDE, slews=slews))
+@pytest.fixture
+def lm(slew_lm):
+    return slew_lm
 
 
 def test_the_surrogate_is_the_exact_objective_at_its_reference_and_close_nearby(lm):
@@ -70,9 +63,11 @@ def test_data_noise_comes_in_antithetic_pairs_of_the_window_noise(lm):
     assert 0.5 < z.std() < 1.5
 
 
-def test_nafsa_with_slews_agrees_with_lm_and_its_spread_estimates_lm_sigma(session_data, lm):
+def test_nafsa_with_slews_agrees_with_lm_and_its_spread_estimates_lm_sigma(
+    session_data, lm, slew_latitude
+):
     pos, slews = session_data
-    opt = CalibrationOptions(method="nafsa", mc_runs=40, seed=3, latitude_deg=LATITUDE,
+    opt = CalibrationOptions(method="nafsa", mc_runs=40, seed=3, latitude_deg=slew_latitude,
                              slews=slews)  # fmt: skip
     done: list[float] = []
     res = calibrate(pos, opt, progress=done.append)

@@ -8,16 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recal.sim.session import session_positions, session_slews, simulate_session
 from recal.solve.calibrate import calibrate
 from recal.solve.nafsa import NafsaConfig, nafsa
 from recal.solve.options import CalibrationOptions
 from recal.solve.phases import WHITENED_BLOCK, whitened_phase
 from recal.solve.separable import block_layout, search_blocks
 from recal.solve.surrogate import SurrogateProblem, data_noise
-from service.capture_sim import kvh_like_truth
-
-LATITUDE = 50.0
 
 
 def test_blocks_cover_the_directions_with_the_least_padding():
@@ -50,27 +46,14 @@ def test_the_block_swarms_find_every_runs_minimum_of_a_separable_quadratic(d):
     assert found.evaluations > 0
 
 
-@pytest.fixture(scope="module")
-def capture():
-    s = simulate_session(kvh_like_truth(21), "random", n_positions=12, latitude_deg=LATITUDE,
-                         seed=21, rate_hz=100.0, window_s=8.0, slew_s=3.0)  # fmt: skip
-    return session_positions(s), session_slews(s)
-
-
-@pytest.fixture(scope="module")
-def lm(capture):
-    pos, slews = capture
-    return calibrate(pos, CalibrationOptions(latitude_deg=LATITUDE, slews=slews))
-
-
-def test_whitened_for_its_own_model_the_hessian_is_the_identity(lm):
+def test_whitened_for_its_own_model_the_hessian_is_the_identity(slew_lm):
     """The phase whitened with the model's Jacobian: H = I / (R - 1) to rounding, so no cross
     term between blocks is dropped; the model's objective is the exact one at its reference."""
-    problem, theta = lm.problem, lm.theta
+    problem, theta = slew_lm.problem, slew_lm.theta
     typical = problem.layout.typical(theta)
     model = SurrogateProblem.at(problem, theta, typical)
     assert model.quadratic and model.linear == problem.invariant_names
-    phase = whitened_phase(problem, theta, typical, lm.observability,
+    phase = whitened_phase(problem, theta, typical, slew_lm.observability,
                            jacobian_along=model.jacobian_along)  # fmt: skip
     assert phase.blocks == WHITENED_BLOCK
     _, _, H = model.phase_quadratic(theta[None], phase.transform)
@@ -80,8 +63,8 @@ def test_whitened_for_its_own_model_the_hessian_is_the_identity(lm):
                                rtol=1e-9)  # fmt: skip
 
 
-def test_one_residual_evaluation_gives_the_perturbed_and_the_measured_objective(lm):
-    problem, theta = lm.problem, lm.theta
+def test_one_residual_evaluation_gives_the_perturbed_and_the_measured_objective(slew_lm):
+    problem, theta = slew_lm.problem, slew_lm.theta
     typical = problem.layout.typical(theta)
     rng = np.random.default_rng(2)
     model = SurrogateProblem.at(problem, theta, typical, data_noise(problem, 4, rng))
@@ -97,17 +80,19 @@ def test_one_residual_evaluation_gives_the_perturbed_and_the_measured_objective(
                                rtol=1e-12)  # fmt: skip
 
 
-def test_the_cycles_end_once_the_model_matches_and_the_answer_is_lms(capture, lm):
+def test_the_cycles_end_once_the_model_matches_and_the_answer_is_lms(
+    slew_session, slew_lm, slew_latitude
+):
     """From the prior the first model is off where the runs land; the second, taken at their
     mean, matches the exact objective there, and the cycles end (the cap is 4)."""
-    pos, slews = capture
-    opt = CalibrationOptions(method="nafsa", mc_runs=40, seed=4, latitude_deg=LATITUDE,
+    pos, slews = slew_session
+    opt = CalibrationOptions(method="nafsa", mc_runs=40, seed=4, latitude_deg=slew_latitude,
                              slews=slews)  # fmt: skip
     res = calibrate(pos, opt)
     assert opt.cycles == 4 and res.mcs.cycles == 2
-    est = lm.observability.estimated
-    sd = np.sqrt(np.diag(lm.covariance_measurement))[est]
-    z = np.abs(res.theta - lm.theta)[est] / sd
+    est = slew_lm.observability.estimated
+    sd = np.sqrt(np.diag(slew_lm.covariance_measurement))[est]
+    z = np.abs(res.theta - slew_lm.theta)[est] / sd
     assert np.median(z) < 0.1 and np.all(z < 0.5)
     assert res.convergence["converged"] is True
     ratio = res.mcs.std[est] / sd  # each run on its own data: the spread is LM's sigma
