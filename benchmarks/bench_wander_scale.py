@@ -3,8 +3,8 @@
 Run: python benchmarks/bench_wander_scale.py [--sizes 150,600,2000,5000] [--seeds 40]
      [--first-seed 7000] [--jobs 2] [--nafsa-sizes 150] [--repeat 1]
 
-About 20 minutes on 2 cores with the defaults; ``--nafsa-sizes`` adds about a minute at 150
-windows and six at 600 (MCS-NAFSA's cost grows with the windows: docs/noise.md).
+About 20 minutes on 2 cores with the defaults; ``--nafsa-sizes`` adds a few seconds per size
+(MCS-NAFSA took 1.3 s at 150 windows and 4.2 s at 2,000 on 2026-11-28: docs/noise.md).
 
 Sessions: seed 000's FOG and accelerometer (seed truth, default window noise at 100 Hz), one
 window of 600 s every 12 minutes (a daemon's ~120 windows a day) in random orientations at 45 deg,
@@ -24,7 +24,7 @@ Per size N:
 2. **Time.** ``recal calibrate FILE --latitude 45 --json`` (LM, wander auto) as a fresh process on
    the first seed's session, alone on the machine (this script runs nothing else meanwhile),
    the fastest of ``--repeat``; for the sizes in ``--nafsa-sizes`` also ``--method nafsa`` (the
-   command line's --mc 100, fish 50, 60 iterations). Targets: <= 10 s at 2,000 windows, <= 30 s
+   command line's --mc 100 and default swarm). Targets: <= 10 s at 2,000 windows, <= 30 s
    at 5,000.
 
 Every figure is printed with its target and met or MISSED.
