@@ -30,6 +30,12 @@ from threadpoolctl import threadpool_limits
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 threadpool_limits(1, user_api="blas")
+# The suite starts its own CLIs and daemons a few hundred times. Where PYTHONDONTWRITEBYTECODE
+# is set (this project's machines set it), each of them compiled the project's modules from
+# source again, about 0.15 s a process, and each worker rewrote every test module's asserts:
+# bytecode is cached for this session and the processes it starts (*.pyc is ignored by git).
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.dont_write_bytecode = False
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
