@@ -114,9 +114,10 @@ def dask_cluster(tmp_path) -> Iterator[str]:
             client.wait_for_workers(2, timeout=60)
         yield address
     finally:
+        # the workers first, while their scheduler still answers (stopped together, a worker
+        # spent seconds on a scheduler that was going away), then the scheduler
         for p in reversed(procs):
             p.terminate()
-        for p in reversed(procs):
             try:
                 p.wait(15)
             except subprocess.TimeoutExpired:
