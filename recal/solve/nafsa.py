@@ -182,7 +182,8 @@ def nafsa(
 
     while book.active.any():
         idx = book.active_runs()
-        zi, fi, si = z[idx], fz[idx], scale[idx]
+        every = idx.size == runs  # all runs live: their arrays as they are, no gather or scatter
+        zi, fi, si = (z, fz, scale) if every else (z[idx], fz[idx], scale[idx])
         best_before = book.best_f[idx].copy()
         zi, fi = _individual_behaviour(book, rng, idx, zi, fi, si, cfg.tries)
         zi, fi = _group_behaviour(book, rng, idx, zi, fi, si)
@@ -195,7 +196,10 @@ def nafsa(
             si = np.maximum(si, floor)
         else:
             si = si * cf  # eq. 5
-        z[idx], fz[idx], scale[idx] = zi, fi, si
+        if every:  # the behaviours returned new arrays: nothing above changed z, fz, scale
+            z, fz, scale = zi, fi, si
+        else:
+            z[idx], fz[idx], scale[idx] = zi, fi, si
         book.record(scale)
     return book.result()
 
