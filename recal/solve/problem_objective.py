@@ -70,8 +70,7 @@ class ProblemObjective:
             r = self.residuals(theta)
             if offsets is not None:
                 r = r + self.whitened_offsets(offsets)
-            total = np.einsum("pr,pr->p", r, r) / max(self.n_residuals - 1, 1)
-            return np.where(np.isfinite(total), total, np.inf)
+            return self.least_squares(r)
         floor = self._floor
         if offsets is None:
             ind = self.indicator(theta)
@@ -83,6 +82,12 @@ class ProblemObjective:
             total = total + np.einsum("pm,pm->p", sq, sq) / (
                 max(self.n_of(n) - 1, 1) * floor[n] ** 2
             )
+        return np.where(np.isfinite(total), total, np.inf)
+
+    def least_squares(self, r: np.ndarray) -> np.ndarray:
+        """The least-squares objective of whitened residuals ``r`` (P, R): their squared sum over
+        (R - 1), +inf where it is not finite."""
+        total = np.einsum("pr,pr->p", r, r) / max(self.n_residuals - 1, 1)
         return np.where(np.isfinite(total), total, np.inf)
 
     def whitened_offsets(self, offsets: Mapping[str, np.ndarray]) -> np.ndarray:

@@ -70,6 +70,12 @@ def _motion_weights(problem: Problem, names: tuple[str, ...]) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
+def _every_residual(problem: Problem, names: tuple[str, ...]) -> bool:
+    """``names`` are all the least squares' invariants: their weighting is the whitening of
+    :meth:`Problem.residuals` (the bias wander's included), over sqrt(R - 1)."""
+    return names == problem.invariant_names and not problem.paper_objective
+
+
 def _weighted(problem: Problem, names: tuple[str, ...], theta: np.ndarray) -> np.ndarray:
     """Weighted residuals (P, n) of invariants ``names``: their squared sum is those invariants'
     part of the objective (all invariants: the whitened residuals over sqrt(R - 1), the bias
@@ -77,7 +83,7 @@ def _weighted(problem: Problem, names: tuple[str, ...], theta: np.ndarray) -> np
     P = np.atleast_2d(theta).shape[0]
     if not names:
         return np.zeros((P, 0))
-    if names == problem.invariant_names and not problem.paper_objective:
+    if _every_residual(problem, names):
         return problem.residuals(theta) / np.sqrt(problem.objective_dof)
     raw = problem.raw_residuals(theta)
     return np.concatenate([raw[n] for n in names], axis=1) * _motion_weights(problem, names)
@@ -87,7 +93,7 @@ def _weighted_noise(problem: Problem, names: tuple[str, ...], noise, run) -> np.
     """The per-run data noise in the weighting of :func:`_weighted`, rows ``run``."""
     if noise is None or run is None or not names:
         return 0.0
-    if names == problem.invariant_names and not problem.paper_objective:
+    if _every_residual(problem, names):
         eps = problem.whitened_offsets({n: noise[n][run] for n in names})
         return eps / np.sqrt(problem.objective_dof)
     w = _motion_weights(problem, names)
@@ -115,12 +121,6 @@ def data_noise(problem: Problem, runs: int, rng: np.random.Generator) -> dict[st
         out[k] = scale * problem.sigma[k] * eps[:, at : at + m]
         at += m
     return out
-
-
-def _least_squares(problem: Problem, r: np.ndarray) -> np.ndarray:
-    """:meth:`Problem.objective` (the least squares) of whitened residuals ``r`` (P, R)."""
-    total = np.einsum("pr,pr->p", r, r) / problem.objective_dof
-    return np.where(np.isfinite(total), total, np.inf)
 
 
 @dataclass(frozen=True)
@@ -218,7 +218,7 @@ class SurrogateProblem:
             return self._perturbed(problem, theta, run), problem.objective(theta)
         r = problem.residuals(theta)
         eps = problem.whitened_offsets({n: self.noise[n][run] for n in problem.invariant_names})
-        return _least_squares(problem, r + eps), _least_squares(problem, r)
+        return problem.least_squares(r + eps), problem.least_squares(r)
 
     def _perturbed(self, problem: Problem, theta: np.ndarray, run: np.ndarray | None) -> np.ndarray:
         """``problem``'s objective on run ``run``'s perturbed data (:meth:`Problem.objective`)."""

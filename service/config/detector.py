@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from service.config.section import Section
+from service.config.section import Section, config_from
 
 
 class DetectorSettings(Section):
@@ -95,12 +95,4 @@ class DetectorSettings(Section):
         """The hull detector's :class:`recal.detect.hull_config.HullConfig` from the hull_* keys."""
         from recal.detect.hull_config import HullConfig
 
-        return HullConfig(
-            turn_window_s=self.hull_turn_window_s,
-            max_swing_deg=self.hull_max_swing_deg,
-            trim_s=self.hull_trim_s,
-            min_window_s=self.hull_min_window_s,
-            max_window_s=self.hull_max_window_s,
-            lever_arm_max_m=self.hull_lever_arm_max_m,
-            max_gap_frames=self.max_gap_frames,
-        )
+        return config_from(HullConfig, self, "hull_", max_gap_frames=self.max_gap_frames)

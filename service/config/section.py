@@ -44,12 +44,17 @@ class TomlFileSettings(BaseSettings):
         return init_settings, env_settings, TomlConfigSettingsSource(settings_cls)
 
 
-def config_from(cls: type[T], section: BaseModel, **extra: Any) -> T:
+def config_from(cls: type[T], section: BaseModel, prefix: str = "", **extra: Any) -> T:
     """``cls`` (a dataclass of a lower layer, e.g. ``recal.detect.static_config.DetectorConfig`` or
-    ``drivers.DecoderConfig``) from the fields of a settings ``section`` it shares by name, plus
-    ``extra``: no field-by-field copy to fall out of step when either side gains a field."""
+    ``drivers.DecoderConfig``) from the fields of a settings ``section`` it shares by name (the
+    section's name with ``prefix`` before it: ``hull_trim_s`` for ``trim_s``), plus ``extra``: no
+    field-by-field copy to fall out of step when either side gains a field."""
     names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    given = {k: v for k, v in section.model_dump().items() if k in names}
+    given = {
+        k[len(prefix) :]: v
+        for k, v in section.model_dump().items()
+        if k.startswith(prefix) and k[len(prefix) :] in names
+    }
     return cls(**{**given, **extra})
 
 

@@ -9,23 +9,17 @@ from typing import Any
 
 from recal.detect.rest import RestReference
 from recal.detect.static_config import DetectorConfig
+from service.config.section import config_from
 from service.config.settings import Settings
 
 
 def detector_config(settings: Settings) -> DetectorConfig:
     """The detector as configured (thresholds, if any, not yet from the store)."""
     d = settings.detector
-    return DetectorConfig(
-        window_s=d.window_s,
-        min_duration_s=d.min_duration_s,
-        edge_trim_s=d.edge_trim_s,
-        accel_threshold=d.accel_threshold,
-        gyro_threshold=d.gyro_threshold,
-        init_still_s=None if d.accel_threshold is not None else d.init_still_s,
-        threshold_k=d.threshold_k,
-        sample_rate_hz=settings.device.rate_hz,
-        max_gap_frames=d.max_gap_frames,
-    )
+    # explicit thresholds: nothing is learned from a still start
+    init_still_s = None if d.accel_threshold is not None else d.init_still_s
+    return config_from(DetectorConfig, d, init_still_s=init_still_s,
+                       sample_rate_hz=settings.device.rate_hz)  # fmt: skip
 
 
 def rest_reference(

@@ -20,10 +20,13 @@ from typing import Any
 import pytest
 from sqlalchemy import create_engine, text
 
+from drivers import DecoderConfig, decode_bulk
 from recal.model.coefficients import CoefficientSet
+from recal.sim.session import simulate_session
 from recal.sim.simulate import simulate_positions
 from recal.solve.calibrate import calibrate
 from recal.solve.result import CalibrationResult
+from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.store.records import CalibrationRecord
 from service.store.repository import Store
 from service.store.rows import Base
@@ -332,3 +335,18 @@ def shore() -> Iterator[Shore]:
         yield s
     finally:
         s.close()
+
+
+#: The frame rate of the :func:`frames` session, Hz.
+FRAMES_RATE_HZ = 100.0
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """A 24-position session at 100 Hz as the daemon decodes it (a KVH-like unit, seed 4)."""
+    session = simulate_session(kvh_like_truth(4), "24", latitude_deg=45.0, seed=4,
+                               rate_hz=FRAMES_RATE_HZ, window_s=12.0, slew_s=3.0,
+                               first_hold_s=12.0)  # fmt: skip
+    config = DecoderConfig(rate_hz=FRAMES_RATE_HZ)
+    batch, _ = decode_bulk(session_to_kvh(session, rng=4)[0], "kvh-a", config)
+    return batch

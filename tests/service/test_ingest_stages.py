@@ -8,14 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers import DecoderConfig, decode_bulk
 from recal.detect.floor import NoiseFloorEstimator
 from recal.detect.rest import RestReference
 from recal.detect.static_config import DetectorConfig
 from recal.detect.static_detector import StaticDetector
 from recal.detect.windows import windows_to_columns
-from recal.sim.session import simulate_session
-from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.events import Events
 from service.ingest.floor_keeper import FloorKeeper
 from service.ingest.hull import HullStage
@@ -39,15 +36,6 @@ class Clock:
 
     def __call__(self) -> float:
         return self.t
-
-
-@pytest.fixture(scope="module")
-def frames():
-    """A 24-position session at 100 Hz as the daemon decodes it."""
-    session = simulate_session(kvh_like_truth(4), "24", latitude_deg=45.0, seed=4, rate_hz=RATE,
-                               window_s=12.0, slew_s=3.0, first_hold_s=12.0)  # fmt: skip
-    batch, _ = decode_bulk(session_to_kvh(session, rng=4)[0], "kvh-a", DecoderConfig(rate_hz=RATE))
-    return batch
 
 
 @pytest.fixture

@@ -17,11 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers import DecoderConfig, decode_bulk
 from recal.detect.slew_collect import ReducedSlew
 from recal.detect.static_config import DetectorConfig
-from recal.sim.session import simulate_session
-from service.capture_sim import kvh_like_truth, session_to_kvh
 from service.config import DetectorSettings, DeviceSettings, SchedulerSettings, Settings
 from service.daemon import build_service
 from service.events import Events
@@ -38,14 +35,6 @@ from service.store.repository import Store
 
 RATE = 100.0
 CONFIG = DetectorConfig(accel_threshold=1e-6, gyro_threshold=1e4, sample_rate_hz=RATE)
-
-
-@pytest.fixture(scope="module")
-def frames():
-    session = simulate_session(kvh_like_truth(4), "24", latitude_deg=45.0, seed=4, rate_hz=RATE,
-                               window_s=12.0, slew_s=3.0, first_hold_s=12.0)  # fmt: skip
-    batch, _ = decode_bulk(session_to_kvh(session, rng=4)[0], "kvh-a", DecoderConfig(rate_hz=RATE))
-    return batch
 
 
 def feed(ingest: Ingest, batch, part: slice = slice(None)) -> None:
